@@ -1,0 +1,27 @@
+"""Typed exceptions raised by the engine. Each message names the offending input and the problem."""
+
+from __future__ import annotations
+
+
+class EngineError(Exception):
+    """Base class for every error the engine raises on purpose."""
+
+
+class CameraError(EngineError, ValueError):
+    """A camera is malformed: non-finite values, a non-rigid rotation, bad intrinsics."""
+
+
+class SceneError(EngineError, ValueError):
+    """A scene cannot be loaded: missing or unreadable files, inconsistent sizes, bad splits."""
+
+
+class PriorError(EngineError, RuntimeError):
+    """A depth prior could not be computed (missing model file, bad model description, ...)."""
+
+
+class RasterError(EngineError, RuntimeError):
+    """The rasterizer was given inputs it cannot render (wrong shapes, devices, dtypes)."""
+
+
+class TrainingDiverged(EngineError, FloatingPointError):
+    """Training produced non-finite values; the message names the step and the parameter group."""

@@ -1,0 +1,25 @@
+"""Types shared by every rasterizer backend."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from torch import Tensor
+
+
+@dataclass
+class RasterOutput:
+    """What one render of a set of Gaussians through one camera returns."""
+
+    image: Tensor
+    """(C, H, W) alpha-blended features, background blended in as ``(1 - alpha) * background``."""
+    depth: Tensor
+    """(1, H, W) alpha-blended view-space z of the Gaussian centres, NOT divided by alpha."""
+    alpha: Tensor
+    """(1, H, W) accumulated opacity."""
+    radii: Tensor
+    """(N,) int32 screen-space radius in pixels; 0 where the Gaussian was culled."""
+    means2d: Tensor
+    """(N, 2) projected centres in pixels. When gradients are enabled it is part of the graph and
+    has ``retain_grad()`` set, so after ``backward()`` its ``.grad`` holds the screen-space
+    gradient that densification accumulates."""
