@@ -1,0 +1,1 @@
+"""The HTTP service (FastAPI). Imports ``sparsesplat.api`` only; never torch."""

@@ -1,0 +1,1 @@
+"""Job execution: worker processes that claim jobs and run the engine. Imports api + engine."""

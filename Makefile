@@ -1,0 +1,52 @@
+# Two commands matter: `make run` (service up, embedded defaults) and `make test`.
+# Both create the virtual environment on first use.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip --disable-pip-version-check
+BENCH_ARGS ?=
+
+.PHONY: run test lint typecheck dockerlint pytest venv clean bench-raster bench-quality bench-iteration
+
+venv: $(VENV)/.installed
+
+# torch is installed first and pinned; nothing installed after it may replace it
+# (our own build needs only setuptools, so build isolation cannot pull torch either).
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "Python >= 3.11 required"'
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install -q "torch==2.13.0"
+	$(PIP) install -q -e ".[dev]"
+	$(PY) -c 'import torch; assert torch.__version__.startswith("2.13.0"), torch.__version__'
+	touch $@
+
+run: venv
+	$(VENV)/bin/sparsesplat serve
+
+lint: venv
+	$(PY) -m ruff check .
+	$(PY) -m ruff format --check .
+
+typecheck: venv
+	$(PY) -m mypy api server client worker sparsesplat/__init__.py
+
+dockerlint: venv
+	$(VENV)/bin/hadolint docker/Dockerfile.cpu docker/Dockerfile.cuda
+
+# pytest exits 5 when a selection collects no test: not a failure of the code.
+pytest: venv
+	$(PY) -m pytest; status=$$?; if [ $$status -eq 5 ]; then exit 0; fi; exit $$status
+
+test: lint typecheck dockerlint pytest
+
+bench-raster: venv
+	$(PY) -m sparsesplat.engine.bench.raster $(BENCH_ARGS)
+
+bench-quality: venv
+	$(PY) -m sparsesplat.engine.bench.quality $(BENCH_ARGS)
+
+bench-iteration: venv
+	$(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
+
+clean:
+	rm -rf $(VENV) .cache .mypy_cache .ruff_cache .pytest_cache build dist *.egg-info

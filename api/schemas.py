@@ -1,0 +1,27 @@
+"""Small response bodies shared by every route."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel
+
+
+class Health(BaseModel):
+    """Answer of ``GET /healthz``: the process is up and serving."""
+
+    status: str = "ok"
+    """Always ``ok`` when the server answers."""
+    version: str
+    """sparsesplat version of the server."""
+    queue: str
+    """Configured queue backend."""
+    device: str
+    """Configured compute device."""
+
+
+class ErrorBody(BaseModel):
+    """Every 4xx/5xx answer: a machine-readable code and a sentence naming the problem."""
+
+    code: str
+    """Stable identifier of the error kind, e.g. ``invalid_cameras``."""
+    message: str
+    """What was wrong, naming the field or file."""

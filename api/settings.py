@@ -1,0 +1,97 @@
+"""The service's one typed settings object, read from ``SPARSESPLAT_*`` environment variables.
+
+Every field can be set as ``SPARSESPLAT_<FIELD>`` (e.g. ``SPARSESPLAT_PORT=9000``) or in a
+``.env`` file in the working directory. The defaults are the embedded setup: SQLite and local
+files under ``./sparsesplat-data``, local worker processes, CPU, listening on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import os
+from enum import StrEnum
+from pathlib import Path
+
+from pydantic import Field, SecretStr, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ENV_PREFIX = "SPARSESPLAT_"
+
+
+def _default_models_dir() -> Path:
+    """``$XDG_CACHE_HOME/sparsesplat/models`` (the engine looks in the same place)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return cache / "sparsesplat" / "models"
+
+
+class QueueBackend(StrEnum):
+    """How jobs travel from the server to the workers."""
+
+    local = "local"
+    """Embedded: the job table itself is the queue; local worker processes lease jobs from it."""
+    celery = "celery"
+    """Scale-out: Celery over Redis (``broker_url``); job records in ``database_url``."""
+
+
+class Device(StrEnum):
+    """Where the trainer and the renderer run."""
+
+    cpu = "cpu"
+    """The default: the native CPU rasterizer."""
+    cuda = "cuda"
+    """A CUDA GPU through gsplat (install the ``cuda`` image or gsplat with --no-deps)."""
+    auto = "auto"
+    """CUDA when available, else CPU."""
+
+
+class Settings(BaseSettings):
+    """Service configuration. Field docs are the reference for each ``SPARSESPLAT_*`` variable."""
+
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX, env_file=".env", extra="ignore", validate_default=True
+    )
+
+    host: str = "127.0.0.1"
+    """Interface the HTTP server binds to. Loopback by default; set 0.0.0.0 in containers."""
+    port: int = Field(8000, ge=1, le=65535)
+    """TCP port of the HTTP server."""
+    data_dir: Path = Path("sparsesplat-data")
+    """Root of local storage: uploads, models, renders, the SQLite database."""
+    database_url: str | None = None
+    """SQLAlchemy-style URL of the job store. Default: ``sqlite:///<data_dir>/sparsesplat.db``.
+    Use ``postgresql://user:pass@host/db`` for the distributed setup."""
+    queue: QueueBackend = QueueBackend.local
+    """Queue backend: ``local`` (embedded) or ``celery`` (Redis broker)."""
+    broker_url: str = "redis://127.0.0.1:6379/0"
+    """Celery broker URL; used only when ``queue=celery``."""
+    device: Device = Device.cpu
+    """Compute device for training and rendering."""
+    workers: int = Field(1, ge=0, le=64)
+    """Local worker processes the server starts (``queue=local``); 0 runs none (external workers)."""
+    torch_threads: int = Field(2, ge=1, le=256)
+    """Torch intra-op threads per worker process."""
+    api_keys: list[SecretStr] = Field(default_factory=list)
+    """Accepted API keys (``Authorization: Bearer <key>``); empty disables auth (loopback use)."""
+    models_dir: Path = Field(default_factory=_default_models_dir)
+    """Directory holding model weights (LPIPS VGG/AlexNet, optional MiDaS/DPT ONNX files)."""
+    log_level: str = "INFO"
+    """Logging level name (DEBUG, INFO, WARNING, ERROR)."""
+    log_json: bool = True
+    """One JSON object per log line (False: human-readable key=value lines)."""
+    max_upload_mb: int = Field(512, ge=1)
+    """Largest accepted upload, in MiB."""
+
+    @model_validator(mode="after")
+    def _fill_database_url(self) -> Settings:
+        if self.database_url is None:
+            self.database_url = f"sqlite:///{self.data_dir / 'sparsesplat.db'}"
+        return self
+
+    @property
+    def auth_enabled(self) -> bool:
+        """Whether requests must carry an API key."""
+        return bool(self.api_keys)
+
+
+def load_settings(**overrides: object) -> Settings:
+    """Read settings from the environment (and ``.env``), with explicit keyword overrides on top."""
+    return Settings(**overrides)  # type: ignore[arg-type]

@@ -1,0 +1,87 @@
+"""The ``sparsesplat`` command. Subcommands live in their own modules and load lazily, so
+``sparsesplat --help`` and the SDK commands work on an SDK-only install, and a command whose
+extra is missing says exactly what to install."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from dataclasses import dataclass
+from types import ModuleType
+
+from sparsesplat import __version__
+
+
+@dataclass(frozen=True)
+class Command:
+    """A subcommand: the module implementing it and the extra it needs."""
+
+    module: str
+    """Module exposing ``add_arguments(parser)`` and ``run(args) -> int``."""
+    help: str
+    """One-line description for ``--help``."""
+    extra: str | None
+    """pip extra that provides its dependencies (None: the base install suffices)."""
+
+
+COMMANDS: dict[str, Command] = {
+    "serve": Command("sparsesplat.server.cli", "run the HTTP service (embedded defaults)", "service"),
+    "health": Command("sparsesplat.client.commands", "ask a running service whether it is up", None),
+    "scene": Command("sparsesplat.engine.commands.scene", "inspect a posed scene folder", "engine"),
+    "train": Command("sparsesplat.engine.commands.train", "train a scene locally (paper protocol)", "engine"),
+    "render": Command("sparsesplat.engine.commands.render", "render a trained checkpoint at a camera", "engine"),
+    "fetch-weights": Command("sparsesplat.client.fetch_weights", "download LPIPS weights (needs network)", None),
+}
+
+# Third-party top-level modules each extra brings; a missing one means the extra is missing.
+_EXTRA_MODULES = {"torch", "numpy", "PIL", "skimage", "onnxruntime", "matplotlib", "fastapi", "uvicorn", "starlette"}
+
+
+def _missing_extra_message(name: str, command: Command, exc: ModuleNotFoundError) -> str:
+    return (
+        f"sparsesplat {name}: needs the '{command.extra}' extra (missing module {exc.name!r}). "
+        f"Install it with: pip install 'sparsesplat[{command.extra}]'"
+    )
+
+
+def _load(name: str) -> ModuleType:
+    return importlib.import_module(COMMANDS[name].module)
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    """The top-level parser; only the chosen subcommand's module is imported."""
+    parser = argparse.ArgumentParser(prog="sparsesplat", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"sparsesplat {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    chosen = next((a for a in argv if a in COMMANDS), None)
+    for name, command in COMMANDS.items():
+        sub_parser = sub.add_parser(name, help=command.help, description=command.help)
+        if name == chosen:
+            _load(name).add_arguments(sub_parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        parser = build_parser(argv)
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 2
+        return int(_load(args.command).run(args) or 0)
+    except ModuleNotFoundError as exc:
+        name = next((a for a in argv if a in COMMANDS), None)
+        top = (exc.name or "").split(".")[0]
+        if name and COMMANDS[name].extra and top in _EXTRA_MODULES:
+            print(_missing_extra_message(name, COMMANDS[name], exc), file=sys.stderr)
+            return 3
+        raise
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
