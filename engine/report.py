@@ -1,0 +1,146 @@
+"""Error against run time: write the trainer's progress records as JSON, CSV and a PNG plot.
+
+A record is one evaluation of a run at some wall-clock time: ``iteration, elapsed_s,
+train_loss, psnr, ssim, lpips, avge, n_gaussians`` (metrics are None when the scene has no
+held-out views or the metric was not computed). Extra keys are kept and written after the
+standard columns.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+COLUMNS = [
+    "iteration",
+    "elapsed_s",
+    "train_loss",
+    "psnr",
+    "ssim",
+    "lpips",
+    "avge",
+    "n_gaussians",
+]
+"""The standard record fields, in the order files and tables show them."""
+
+FILENAMES = {
+    "json": "metrics_series.json",
+    "csv": "metrics_series.csv",
+    "png": "metrics_series.png",
+}
+"""What :func:`write_report` writes into its output folder, by kind."""
+
+
+def _clean(value: Any) -> Any:
+    """JSON-safe scalar: non-finite floats become None, tensors/numpy scalars plain numbers."""
+    if hasattr(value, "item") and callable(value.item):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _columns(records: Sequence[dict[str, Any]]) -> list[str]:
+    """Standard columns first, then any extra keys in first-seen order."""
+    extra: list[str] = []
+    for rec in records:
+        extra += [k for k in rec if k not in COLUMNS and k not in extra]
+    return COLUMNS + extra
+
+
+def _series(records: Sequence[dict[str, Any]], key: str) -> tuple[list[float], list[float]]:
+    """(seconds, values) of the records where ``key`` holds a finite number."""
+    xs, ys = [], []
+    for rec in records:
+        x, y = _clean(rec.get("elapsed_s")), _clean(rec.get(key))
+        if isinstance(x, (int, float)) and isinstance(y, (int, float)):
+            xs.append(float(x))
+            ys.append(float(y))
+    return xs, ys
+
+
+def plot_report(records: Sequence[dict[str, Any]], path: Path, title: str | None = None) -> Path:
+    """Plot held-out PSNR and LPIPS (and the training loss) against seconds into a PNG.
+
+    Uses matplotlib's object API on an Agg canvas: no pyplot, no global backend switch, so it
+    is safe inside a service process. Panels without data are left out; with no data at all
+    the figure says so.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    panels = [
+        (key, label)
+        for key, label in (
+            ("psnr", "PSNR (dB, held-out) ↑"),
+            ("lpips", "LPIPS (held-out) ↓"),
+            ("train_loss", "training loss ↓"),
+        )
+        if _series(records, key)[0]
+    ]
+    fig = Figure(figsize=(7.0, 2.4 * max(1, len(panels))), dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)[:, 0]
+    if not panels:
+        axes[0].text(0.5, 0.5, "no records", ha="center", va="center")
+    for ax, (key, label) in zip(axes, panels, strict=False):
+        xs, ys = _series(records, key)
+        ax.plot(xs, ys, marker="o", markersize=3)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("wall-clock seconds")
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
+
+
+def write_report(
+    records: Sequence[dict[str, Any]], out_dir: str | Path, title: str | None = None
+) -> dict[str, Path]:
+    """Write ``metrics_series.{json,csv,png}`` into ``out_dir``; returns their paths by kind."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    columns = _columns(records)
+    rows = [{c: _clean(rec.get(c)) for c in columns} for rec in records]
+    paths = {kind: out / name for kind, name in FILENAMES.items()}
+    paths["json"].write_text(json.dumps({"columns": columns, "records": rows}, indent=1))
+    with paths["csv"].open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        # None is written as an empty cell, the usual CSV spelling of a missing value.
+        writer.writerows({c: ("" if v is None else v) for c, v in row.items()} for row in rows)
+    plot_report(records, paths["png"], title)
+    return paths
+
+
+def _fmt(value: Any) -> str:
+    """One table cell: floats to 4 significant decimals, None as '-'."""
+    value = _clean(value)
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.4f}" if abs(value) < 1000 else f"{value:.1f}"
+    return str(value)
+
+
+def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
+    """The records as an aligned text table (header, rule, one line per record)."""
+    cols = list(columns) if columns is not None else _columns(records)
+    cells = [[_fmt(rec.get(c)) for c in cols] for rec in records]
+    widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(cols)]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(cols, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(v.rjust(w) for v, w in zip(row, widths, strict=True)) for row in cells]
+    return "\n".join(lines)
+
+
+def print_table(records: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> None:
+    """Print :func:`format_table` to stdout."""
+    print(format_table(records, columns))
