@@ -1,0 +1,293 @@
+"""Converters between foreign camera conventions and the internal one (engine.camera).
+
+Internal: world-to-camera 4x4 in OpenCV axes (+x right, +y down, +z forward). Every converter
+validates its input: NaN/inf anywhere, or a rotation that is not orthonormal with det +1, raises
+:class:`CameraError` naming ``source`` (the file / frame the matrix came from).
+
+Intrinsics read from files are used as given: the datasets here store principal points in the
+continuous image frame (pixel centres at +0.5), which is the internal convention.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.errors import CameraError
+
+ROTATION_TOLERANCE = 1e-3
+"""Max |R^T R - I| and |det R - 1| accepted as a rigid rotation (float32 files round at ~1e-7,
+but LLFF/COLMAP exports keep only a few digits)."""
+
+# OpenGL/Blender axes (+x right, +y up, +z back) to OpenCV axes: flip y and z.
+_FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def as_matrix(value: Any, shape: tuple[int, ...], source: str) -> np.ndarray:
+    """Return ``value`` as a float64 array of ``shape``; raise CameraError naming ``source``."""
+    try:
+        array = np.asarray(
+            value.detach().cpu().numpy() if isinstance(value, Tensor) else value, dtype=np.float64
+        )
+    except (TypeError, ValueError) as exc:
+        raise CameraError(f"{source}: camera matrix is not numeric ({exc})") from exc
+    if array.shape != shape:
+        raise CameraError(f"{source}: camera matrix has shape {array.shape}, expected {shape}")
+    if not np.all(np.isfinite(array)):
+        raise CameraError(f"{source}: camera matrix contains NaN or inf")
+    return array
+
+
+def check_rotation(rotation: np.ndarray, source: str) -> None:
+    """Raise CameraError unless ``rotation`` (3x3) is orthonormal with determinant +1."""
+    if not np.all(np.isfinite(rotation)):
+        raise CameraError(f"{source}: rotation contains NaN or inf")
+    err = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    det = float(np.linalg.det(rotation))
+    if err > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+        raise CameraError(
+            f"{source}: rotation is not rigid (max |R^T R - I| = {err:.2e}, det = {det:.4f})"
+        )
+
+
+def rigid_inverse(matrix: np.ndarray) -> np.ndarray:
+    """Inverse of a 4x4 rigid transform, computed as (R^T, -R^T t)."""
+    out = np.eye(4)
+    out[:3, :3] = matrix[:3, :3].T
+    out[:3, 3] = -matrix[:3, :3].T @ matrix[:3, 3]
+    return out
+
+
+def _bottom_row_ok(matrix: np.ndarray, source: str) -> None:
+    if np.abs(matrix[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-6:
+        raise CameraError(f"{source}: last row of the 4x4 pose is {matrix[3]}, expected [0 0 0 1]")
+
+
+def w2c_from_opencv_c2w(c2w: Any, source: str = "pose") -> Tensor:
+    """OpenCV camera-to-world (4x4) -> internal world-to-camera (float32 tensor)."""
+    m = as_matrix(c2w, (4, 4), source)
+    _bottom_row_ok(m, source)
+    check_rotation(m[:3, :3], source)
+    return torch.from_numpy(rigid_inverse(m)).float()
+
+
+def w2c_from_opencv_w2c(w2c: Any, source: str = "pose") -> Tensor:
+    """OpenCV world-to-camera (4x4), validated -> internal pose (float32 tensor)."""
+    m = as_matrix(w2c, (4, 4), source)
+    _bottom_row_ok(m, source)
+    check_rotation(m[:3, :3], source)
+    return torch.from_numpy(m).float()
+
+
+def w2c_from_opengl_c2w(c2w: Any, source: str = "pose") -> Tensor:
+    """OpenGL/Blender/NeRF camera-to-world (+y up, +z back) -> internal world-to-camera."""
+    m = as_matrix(c2w, (4, 4), source)
+    _bottom_row_ok(m, source)
+    check_rotation(m[:3, :3], source)
+    return torch.from_numpy(rigid_inverse(m @ _FLIP_YZ)).float()
+
+
+def opengl_c2w_from_w2c(w2c: Tensor) -> np.ndarray:
+    """Internal world-to-camera -> OpenGL/Blender camera-to-world (inverse of the above)."""
+    m = as_matrix(w2c, (4, 4), "pose")
+    return rigid_inverse(m) @ _FLIP_YZ
+
+
+def w2c_from_opengl_w2c(w2c: Any, source: str = "pose") -> Tensor:
+    """OpenGL world-to-camera -> internal world-to-camera (flip the camera's y and z axes)."""
+    m = as_matrix(w2c, (4, 4), source)
+    _bottom_row_ok(m, source)
+    check_rotation(m[:3, :3], source)
+    return torch.from_numpy(_FLIP_YZ @ m).float()
+
+
+# ---------------------------------------------------------------- LLFF poses_bounds.npy
+
+
+def cameras_from_llff(
+    poses_bounds: np.ndarray, image_size: tuple[int, int], source: str = "poses_bounds.npy"
+) -> tuple[list[Camera], np.ndarray]:
+    """Parse LLFF ``poses_bounds.npy`` rows (N, 17) into cameras for images of ``image_size``
+    (height, width), plus the (N, 2) near/far bounds.
+
+    Each row is a 3x5 matrix [R | t | hwf] flattened row-major, then near, far. The rotation
+    columns are the camera's [down, right, back] axes in world coordinates, t is the camera
+    centre, hwf is the FULL-resolution height, width, focal. The focal is rescaled by the ratio
+    of ``image_size`` to the full-resolution size (the aspect must agree).
+    """
+    pb = np.asarray(poses_bounds, dtype=np.float64)
+    if pb.ndim != 2 or pb.shape[1] != 17:
+        raise CameraError(f"{source}: expected an (N, 17) array, got shape {pb.shape}")
+    if not np.all(np.isfinite(pb)):
+        bad = int(np.where(~np.isfinite(pb).all(axis=1))[0][0])
+        raise CameraError(f"{source}: row {bad} contains NaN or inf")
+    height, width = image_size
+    cameras = []
+    for i, row in enumerate(pb):
+        mat = row[:15].reshape(3, 5)
+        h_full, w_full, focal = mat[:, 4]
+        scale_y, scale_x = height / h_full, width / w_full
+        if abs(scale_x - scale_y) > 0.01 * max(scale_x, scale_y):
+            raise CameraError(
+                f"{source}: row {i} full-resolution size {w_full:.0f}x{h_full:.0f} does not have "
+                f"the aspect of the images ({width}x{height})"
+            )
+        cameras.append(
+            Camera(
+                w2c_from_llff(mat[:, :4], f"{source} row {i}"),
+                focal * scale_x,
+                focal * scale_y,
+                width / 2.0,
+                height / 2.0,
+                width,
+                height,
+            )
+        )
+    return cameras, pb[:, 15:17].copy()
+
+
+def w2c_from_llff(pose34: Any, source: str = "poses_bounds.npy") -> Tensor:
+    """LLFF 3x4 [down, right, back | centre] camera-to-world -> internal world-to-camera."""
+    m = as_matrix(pose34, (3, 4), source)
+    down, right, back, centre = m[:, 0], m[:, 1], m[:, 2], m[:, 3]
+    c2w = np.eye(4)
+    # OpenCV axes: x = right, y = down, z = forward = -back.
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, -back, centre
+    check_rotation(c2w[:3, :3], source)
+    return torch.from_numpy(rigid_inverse(c2w)).float()
+
+
+def llff_from_w2c(w2c: Tensor) -> np.ndarray:
+    """Internal world-to-camera -> LLFF 3x4 [down, right, back | centre] (inverse of above)."""
+    c2w = rigid_inverse(as_matrix(w2c, (4, 4), "pose"))
+    out = np.zeros((3, 4))
+    out[:, 0], out[:, 1], out[:, 2], out[:, 3] = c2w[:3, 1], c2w[:3, 0], -c2w[:3, 2], c2w[:3, 3]
+    return out
+
+
+# ---------------------------------------------------------------- NeuS / IDR cameras_sphere
+
+
+def rq_decomposition(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Factor a 3x3 matrix as K @ R with K upper-triangular (positive diagonal) and R
+    orthonormal, via QR of the row-reversed transpose (no OpenCV needed)."""
+    flip = np.flipud(np.eye(3))
+    q, r = np.linalg.qr((flip @ matrix).T)
+    k = flip @ r.T @ flip
+    rot = flip @ q.T
+    # Make K's diagonal positive; D = diag(sign) satisfies D @ D = I.
+    d = np.diag(np.sign(np.diag(k)))
+    return k @ d, d @ rot
+
+
+def camera_from_projection(
+    projection: Any, width: int, height: int, source: str = "projection"
+) -> Camera:
+    """Decompose a 3x4 (or 4x4) projection P = s K [R | t] into an internal camera."""
+    p = np.asarray(projection, dtype=np.float64)
+    if p.shape == (4, 4):
+        p = p[:3]
+    p = as_matrix(p, (3, 4), source)
+    k, rot = rq_decomposition(p[:, :3])
+    if abs(k[2, 2]) < 1e-12:
+        raise CameraError(f"{source}: projection matrix is degenerate (K[2,2] = 0)")
+    scale = k[2, 2]
+    k = k / scale
+    if np.linalg.det(rot) < 0:  # P and -P are the same projection; choose the proper rotation
+        rot, scale = -rot, -scale
+    t = np.linalg.solve(k, p[:, 3] / scale)
+    check_rotation(rot, source)
+    if abs(k[0, 1]) > 1e-3 * abs(k[0, 0]):
+        raise CameraError(f"{source}: projection has skew {k[0, 1]:.3g}, which is not supported")
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = rot, t
+    return Camera(
+        torch.from_numpy(w2c).float(),
+        float(k[0, 0]),
+        float(k[1, 1]),
+        float(k[0, 2]),
+        float(k[1, 2]),
+        width,
+        height,
+    )
+
+
+def camera_from_neus(
+    world_mat: Any, scale_mat: Any, width: int, height: int, source: str = "cameras_sphere.npz"
+) -> Camera:
+    """NeuS/IDR: P = world_mat @ scale_mat maps the normalised (unit-sphere) frame to pixels;
+    decompose it into an internal camera in that normalised frame."""
+    wm = as_matrix(world_mat, (4, 4), source)
+    sm = as_matrix(scale_mat, (4, 4), source)
+    return camera_from_projection((wm @ sm)[:3], width, height, source)
+
+
+def neus_from_camera(camera: Camera, scale_mat: np.ndarray) -> np.ndarray:
+    """Internal camera (in the normalised frame) -> NeuS ``world_mat`` for ``scale_mat``."""
+    k = np.eye(4)
+    k[:3, :3] = camera.K.double().numpy()
+    p = k @ as_matrix(camera.world_to_camera, (4, 4), "pose")
+    return p @ np.linalg.inv(scale_mat)
+
+
+# ---------------------------------------------------------------- instant-ngp transforms.json
+
+
+def intrinsics_from_transforms(
+    meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, source: str
+) -> tuple[float, float, float, float]:
+    """fx, fy, cx, cy for one frame of a NeRF/instant-ngp/nerfstudio ``transforms.json``.
+
+    Per-frame keys override the top-level ones. ``fl_x/fl_y/cx/cy`` are in pixels of the stored
+    size ``w/h``; when the actual image size differs they are rescaled. Without ``fl_x``, the
+    focal comes from ``camera_angle_x`` (NeRF-synthetic), and cx, cy default to the centre.
+    """
+
+    def get(key: str) -> Any:
+        return frame.get(key, meta.get(key))
+
+    w_ref = float(get("w") or width)
+    h_ref = float(get("h") or height)
+    sx, sy = width / w_ref, height / h_ref
+    try:
+        if get("fl_x") is not None:
+            fx = float(get("fl_x")) * sx
+            fy = float(get("fl_y") if get("fl_y") is not None else get("fl_x")) * sy
+        elif get("camera_angle_x") is not None:
+            fx = 0.5 * width / np.tan(0.5 * float(get("camera_angle_x")))
+            fy = (
+                0.5 * height / np.tan(0.5 * float(get("camera_angle_y")))
+                if get("camera_angle_y") is not None
+                else fx
+            )
+        else:
+            raise CameraError(f"{source}: no focal length (fl_x or camera_angle_x)")
+        cx = float(get("cx")) * sx if get("cx") is not None else width / 2.0
+        cy = float(get("cy")) * sy if get("cy") is not None else height / 2.0
+    except (TypeError, ValueError) as exc:
+        raise CameraError(f"{source}: malformed intrinsics ({exc})") from exc
+    values = np.array([fx, fy, cx, cy])
+    if not np.all(np.isfinite(values)) or fx <= 0 or fy <= 0:
+        raise CameraError(f"{source}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}")
+    return fx, fy, cx, cy
+
+
+def check_intrinsics(fx: float, fy: float, cx: float, cy: float, source: str) -> None:
+    """Raise CameraError unless the focal lengths are finite and positive, cx/cy finite."""
+    values = np.array([fx, fy, cx, cy], dtype=np.float64)
+    if not np.all(np.isfinite(values)) or fx <= 0 or fy <= 0:
+        raise CameraError(f"{source}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}")
+
+
+def project(camera: Camera, points: Tensor) -> tuple[Tensor, Tensor]:
+    """Project world points (N, 3) to continuous pixel coordinates (N, 2) and view depth (N,)."""
+    w2c = camera.world_to_camera.to(points.dtype)
+    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2]
+    u = camera.fx * cam[:, 0] / z + camera.cx
+    v = camera.fy * cam[:, 1] / z + camera.cy
+    return torch.stack([u, v], dim=-1), z

@@ -1,0 +1,100 @@
+"""NeRF-synthetic (Blender) scenes: ``transforms_{train,test}.json`` with RGBA frames."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera_convert import intrinsics_from_transforms, w2c_from_opengl_c2w
+from sparsesplat.engine.datasets.common import load_view
+from sparsesplat.engine.datasets.splits import blender_split
+from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.images import image_size
+from sparsesplat.engine.scene import Scene, View
+
+WHITE = (1.0, 1.0, 1.0)
+BLENDER_NEAR, BLENDER_FAR = 2.0, 6.0
+"""The NeRF-synthetic near/far convention."""
+
+
+def read_transforms(path: Path) -> dict[str, Any]:
+    """Parse a transforms JSON; missing or malformed files raise SceneError naming ``path``."""
+    if not path.is_file():
+        raise SceneError(f"{path}: file not found")
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"{path}: cannot parse JSON ({exc})") from exc
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise SceneError(f"{path}: no 'frames' list")
+    return meta
+
+
+def frame_image_path(root: Path, frame: dict[str, Any], source: str) -> Path:
+    """Resolve a frame's ``file_path`` (NeRF omits the .png suffix)."""
+    rel = frame.get("file_path")
+    if not isinstance(rel, str):
+        raise SceneError(f"{source}: frame without a 'file_path'")
+    path = (root / rel).resolve()
+    if path.suffix == "" or not path.is_file():
+        for suffix in (".png", ".jpg", ".jpeg"):
+            if path.with_name(path.name + suffix).is_file():
+                return path.with_name(path.name + suffix)
+    if not path.is_file():
+        raise SceneError(f"{source}: image {rel!r} not found under {root}")
+    return path
+
+
+def frame_camera(root: Path, meta: dict[str, Any], frame: dict[str, Any], source: str) -> Camera:
+    """Camera of one transforms.json frame (OpenGL camera-to-world pose)."""
+    path = frame_image_path(root, frame, source)
+    width, height = image_size(path)
+    try:
+        w2c = w2c_from_opengl_c2w(frame.get("transform_matrix"), f"{source} {frame['file_path']}")
+        fx, fy, cx, cy = intrinsics_from_transforms(meta, frame, width, height, source)
+    except CameraError as exc:
+        raise SceneError(str(exc)) from exc
+    return Camera(w2c, fx, fy, cx, cy, width, height)
+
+
+def load_frames(
+    root: Path, json_name: str, indices: list[int], downscale: int, background: tuple
+) -> list[View]:
+    """Load the listed frames of one transforms file."""
+    path = root / json_name
+    meta = read_transforms(path)
+    views = []
+    for i in indices:
+        frame = meta["frames"][i]
+        cam = frame_camera(root, meta, frame, str(path))
+        image_path = frame_image_path(root, frame, str(path))
+        views.append(load_view(image_path.stem, image_path, cam, background, downscale))
+    return views
+
+
+def load_blender(root: Path, views: int, downscale: int = 1) -> Scene:
+    """Load a NeRF-synthetic scene: train frames 26, 86, 2, 55, 75, 93, 16, 73 (first
+    ``views``), test every 8th frame of the test split, RGBA composited on white."""
+    train_meta = read_transforms(root / "transforms_train.json")
+    test_meta = read_transforms(root / "transforms_test.json")
+    train_idx, test_idx = blender_split(
+        len(train_meta["frames"]), len(test_meta["frames"]), views, str(root)
+    )
+    train = load_frames(root, "transforms_train.json", train_idx, downscale, WHITE)
+    test = load_frames(root, "transforms_test.json", test_idx, downscale, WHITE)
+    return Scene(
+        name=root.name,
+        format="blender",
+        train=train,
+        test=test,
+        background=torch.tensor(WHITE),
+        near=BLENDER_NEAR,
+        far=BLENDER_FAR,
+        init_box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
+        train_indices=train_idx,
+        test_indices=test_idx,
+    )

@@ -1,0 +1,71 @@
+"""LLFF scenes: ``poses_bounds.npy`` plus an ``images_N`` folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sparsesplat.engine.camera_convert import cameras_from_llff
+from sparsesplat.engine.datasets.common import covisible_box, load_view
+from sparsesplat.engine.datasets.splits import llff_split
+from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.images import image_size, list_images
+from sparsesplat.engine.scene import Scene
+
+IMAGE_DIRS = ("images_8", "images_4", "images_2", "images")
+"""Image folders in order of preference: the paper's 8x first, full resolution last."""
+
+
+def find_image_dir(root: Path) -> Path:
+    """The first existing folder of :data:`IMAGE_DIRS` under ``root``."""
+    for name in IMAGE_DIRS:
+        if (root / name).is_dir():
+            return root / name
+    raise SceneError(f"{root}: no image folder (looked for {', '.join(IMAGE_DIRS)})")
+
+
+def load_llff(root: Path, views: int, downscale: int = 1) -> Scene:
+    """Load an LLFF scene with the RegNeRF/DNGaussian split; poses stay in COLMAP units."""
+    pb_path = root / "poses_bounds.npy"
+    if not pb_path.is_file():
+        raise SceneError(f"{pb_path}: file not found")
+    try:
+        pb = np.load(pb_path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"{pb_path}: cannot read ({exc})") from exc
+    image_dir = find_image_dir(root)
+    files = list_images(image_dir)  # lexicographic, the row order of poses_bounds
+    if len(files) != len(pb):
+        raise SceneError(f"{pb_path}: {len(pb)} poses but {len(files)} images in {image_dir}")
+    width, height = image_size(files[0])
+    try:
+        cameras, bounds = cameras_from_llff(pb, (height, width), str(pb_path))
+    except CameraError as exc:
+        raise SceneError(str(exc)) from exc
+    train_idx, test_idx = llff_split(len(files), views, str(root))
+    background = (0.0, 0.0, 0.0)
+
+    def view(i: int):  # type: ignore[no-untyped-def]
+        return load_view(files[i].stem, files[i], cameras[i], background, downscale)
+
+    train = [view(i) for i in train_idx]
+    test = [view(i) for i in test_idx]
+    box = covisible_box(
+        [cameras[i] for i in train_idx],
+        [float(bounds[i, 0]) for i in train_idx],
+        [float(bounds[i, 1]) for i in train_idx],
+    )
+    return Scene(
+        name=root.name,
+        format="llff",
+        train=train,
+        test=test,
+        background=torch.tensor(background),
+        near=float(bounds[:, 0].min()),
+        far=float(bounds[:, 1].max()),
+        init_box=box,
+        train_indices=train_idx,
+        test_indices=test_idx,
+    )

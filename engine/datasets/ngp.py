@@ -1,0 +1,45 @@
+"""instant-ngp / nerfstudio scenes: one ``transforms.json`` (fl_x, fl_y, cx, cy, w, h)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
+from sparsesplat.engine.datasets.common import covisible_box, load_view, look_at_bounds
+from sparsesplat.engine.datasets.splits import llff_split
+from sparsesplat.engine.scene import Scene
+
+BLACK = (0.0, 0.0, 0.0)
+
+
+def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
+    """Load an instant-ngp scene with the LLFF-style split over frames sorted by file path.
+
+    Lens distortion (k1, k2, p1, p2) is ignored: images are used as pinhole images."""
+    path = root / "transforms.json"
+    meta = read_transforms(path)
+    frames = sorted(meta["frames"], key=lambda f: str(f.get("file_path")))
+    cameras = [frame_camera(root, meta, f, str(path)) for f in frames]
+    train_idx, test_idx = llff_split(len(frames), views, str(root))
+
+    def view(i: int):  # type: ignore[no-untyped-def]
+        image_path = frame_image_path(root, frames[i], str(path))
+        return load_view(image_path.stem, image_path, cameras[i], BLACK, downscale)
+
+    near, far = look_at_bounds(cameras)
+    train_cams = [cameras[i] for i in train_idx]
+    box = covisible_box(train_cams, [near] * len(train_cams), [far] * len(train_cams))
+    return Scene(
+        name=root.name,
+        format="ngp",
+        train=[view(i) for i in train_idx],
+        test=[view(i) for i in test_idx],
+        background=torch.tensor(BLACK),
+        near=near,
+        far=far,
+        init_box=box,
+        train_indices=train_idx,
+        test_indices=test_idx,
+    )
