@@ -1,0 +1,150 @@
+"""Losses: photometric (L1, 3DGS SSIM), Global-Local Depth Normalization, depth smoothness,
+and DNGaussian's shape / scale / opacity regularizers.
+
+Images are (C, H, W) tensors here. Depth maps are (1, H, W) or (H, W).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+from torch.nn import functional as F
+
+_STD_FLOOR = 1e-8
+"""Floor on the normalization epsilon so constant depth (zero std) gives 0, never 0/0."""
+
+
+def l1_loss(pred: Tensor, target: Tensor) -> Tensor:
+    """Mean absolute error."""
+    return (pred - target).abs().mean()
+
+
+def _gaussian_window(size: int, sigma: float, channels: int, like: Tensor) -> Tensor:
+    coords = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
+    g = torch.exp(-(coords**2) / (2 * sigma**2))
+    g = g / g.sum()
+    w = g[:, None] * g[None, :]
+    return w.expand(channels, 1, size, size).contiguous()
+
+
+def ssim(pred: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
+    """3DGS SSIM: 11x11 Gaussian window (sigma 1.5), zero padding, C1=0.01², C2=0.03², mean
+    over all pixels and channels. Inputs (C, H, W) in [0, 1]."""
+    c = pred.shape[0]
+    w = _gaussian_window(window, sigma, c, pred)
+    x, y = pred.unsqueeze(0), target.unsqueeze(0)
+    pad = window // 2
+    mu_x = F.conv2d(x, w, padding=pad, groups=c)
+    mu_y = F.conv2d(y, w, padding=pad, groups=c)
+    sxx = F.conv2d(x * x, w, padding=pad, groups=c) - mu_x**2
+    syy = F.conv2d(y * y, w, padding=pad, groups=c) - mu_y**2
+    sxy = F.conv2d(x * y, w, padding=pad, groups=c) - mu_x * mu_y
+    c1, c2 = 0.01**2, 0.03**2
+    num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
+    den = (mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2)
+    return (num / den).mean()
+
+
+def photometric_loss(pred: Tensor, target: Tensor, lambda_dssim: float) -> Tensor:
+    """DNGaussian's colour loss: L1 + lambda * (1 - SSIM) (L1 is NOT scaled by 1 - lambda)."""
+    return l1_loss(pred, target) + lambda_dssim * (1.0 - ssim(pred, target))
+
+
+def patchify(depth: Tensor, patch: int) -> Tensor:
+    """(1, H, W) or (H, W) → (P, patch²) non-overlapping tiles from the top-left corner; the
+    last H mod p rows and W mod p columns are dropped (unfold with stride = kernel)."""
+    d = depth.reshape(1, 1, depth.shape[-2], depth.shape[-1])
+    return F.unfold(d, kernel_size=patch, stride=patch).squeeze(0).T
+
+
+def _normalize(patches: Tensor, scale: Tensor | None) -> Tensor:
+    """Subtract each patch's mean, divide by its own std (local) or ``scale`` (global), plus an
+    epsilon of 1% of the std of all patch values (floored so constant maps give zeros)."""
+    mean = patches.mean(dim=1, keepdim=True)
+    if scale is None:
+        scale = patches.std(dim=1, keepdim=True) if patches.shape[1] > 1 else torch.zeros_like(mean)
+    eps = torch.clamp_min(0.01 * patches.reshape(-1).std(), _STD_FLOOR)
+    return (patches - mean) / (scale + eps)
+
+
+def margin_mse(residual: Tensor, margin: float) -> Tensor:
+    """Error-tolerant L2: mean of r² over the elements with |r| > margin. The reference returns
+    NaN when nothing exceeds the margin; we return a graph-connected zero instead."""
+    keep = residual.abs() > margin
+    if not bool(keep.any()):
+        return (residual * 0.0).sum()
+    return residual[keep].square().mean()
+
+
+def depth_norm_loss(
+    depth: Tensor, target: Tensor, patch: int, margin: float, mode: str = "local"
+) -> Tensor:
+    """Patch-normalized depth loss between rendered ``depth`` and prior ``target`` (same size,
+    "larger = farther"). ``mode`` 'local' divides each patch by its own std, 'global' by the
+    detached std of the whole map (Global-Local Depth Normalization)."""
+    h, w = depth.shape[-2], depth.shape[-1]
+    patch = max(1, min(patch, h, w))
+    pd, pt = patchify(depth, patch), patchify(target, patch)
+    if mode == "local":
+        nd, nt = _normalize(pd, None), _normalize(pt, None)
+    elif mode == "global":
+        nd = _normalize(pd, depth.detach().std())
+        nt = _normalize(pt, target.detach().std())
+    else:
+        raise ValueError(f"depth_norm_loss: mode must be 'local' or 'global', got {mode!r}")
+    return margin_mse(nd - nt, margin)
+
+
+def global_local_depth_loss(
+    depth: Tensor,
+    target: Tensor,
+    patch_range: tuple[int, int],
+    margin: float,
+    generator: torch.Generator,
+    global_weight: float = 1.0,
+    local_weight: float = 0.1,
+) -> Tensor:
+    """R = global_weight * GN(p1) + local_weight * LN(p2), p1 and p2 drawn independently and
+    uniformly from the inclusive ``patch_range``."""
+    lo, hi = patch_range
+    p1 = int(torch.randint(lo, hi + 1, (1,), generator=generator))
+    p2 = int(torch.randint(lo, hi + 1, (1,), generator=generator))
+    return global_weight * depth_norm_loss(
+        depth, target, p1, margin, "global"
+    ) + local_weight * depth_norm_loss(depth, target, p2, margin, "local")
+
+
+def edge_aware_smoothness(depth: Tensor, guide: Tensor) -> Tensor:
+    """Sum |dD| exp(-|dM|) / sum exp(-|dM|) over x and y neighbours, with weights from the
+    guide (the prior depth, pre-scaled to the reference's [0, 257] range by the caller)."""
+    d = depth.reshape(depth.shape[-2], depth.shape[-1])
+    g = guide.reshape(d.shape)
+    total = d.new_zeros(())
+    for dim in (0, 1):
+        dd = torch.diff(d, dim=dim).abs()
+        wg = torch.exp(-torch.diff(g, dim=dim).abs())
+        total = total + (dd * wg).sum() / wg.sum().clamp_min(1e-12)
+    return total
+
+
+def shape_regularizer(scales: Tensor) -> Tensor:
+    """mean(max(s) / min(s)): discourages needle-like Gaussians."""
+    if scales.shape[0] == 0:
+        return scales.sum()
+    return (scales.max(dim=1).values / scales.min(dim=1).values.clamp_min(1e-12)).mean()
+
+
+def scale_regularizer(scales: Tensor) -> Tensor:
+    """mean(max(s)²): discourages very large Gaussians."""
+    if scales.shape[0] == 0:
+        return scales.sum()
+    return scales.max(dim=1).values.square().mean()
+
+
+def opacity_regularizer(opacity: Tensor, threshold: float = 0.2) -> Tensor:
+    """1 - mean(a² | a > t) + mean((1 - a)² | a < t), empty selections contributing 0 (the
+    reference's second term pushes low opacities up, kept as is; see method notes §6)."""
+    hi, lo = opacity > threshold, opacity < threshold
+    term_hi = 1.0 - opacity[hi].square().mean() if bool(hi.any()) else opacity.sum() * 0.0
+    term_lo = (1.0 - opacity[lo]).square().mean() if bool(lo.any()) else opacity.sum() * 0.0
+    return term_hi + term_lo
