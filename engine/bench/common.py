@@ -1,0 +1,81 @@
+"""Helpers every benchmark shares: a description of the machine and a results writer."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from pathlib import Path
+from typing import Any
+
+RESULTS_DIR_ENV = "SPARSESPLAT_BENCH_DIR"
+"""Environment variable overriding where results are written (default: <repo>/bench-results)."""
+
+
+def _cpu_model() -> str:
+    """The CPU model name from /proc/cpuinfo, or platform.processor() elsewhere."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU model, logical cores, torch threads and versions of the process running the bench."""
+    info: dict[str, Any] = {
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
+    try:
+        import torch
+
+        info["torch"] = torch.__version__
+        info["torch_threads"] = torch.get_num_threads()
+        info["cuda"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    except ImportError:
+        info["torch"] = None
+    return info
+
+
+def results_dir() -> Path:
+    """bench-results/ at the repository root (or $SPARSESPLAT_BENCH_DIR, or ./bench-results)."""
+    if os.environ.get(RESULTS_DIR_ENV):
+        return Path(os.environ[RESULTS_DIR_ENV])
+    repo = Path(__file__).resolve().parents[2]
+    if (repo / "pyproject.toml").is_file():
+        return repo / "bench-results"
+    return Path.cwd() / "bench-results"
+
+
+def format_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    """Rows as an aligned plain-text table with the given columns (missing cells are blank)."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.1f}" if abs(v) >= 10 else f"{v:.3g}"
+        return "" if v is None else str(v)
+
+    cells = [[cell(r.get(c)) for c in columns] for r in rows]
+    widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(columns)]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(columns, widths, strict=True))]
+    lines += ["  ".join(v.rjust(w) for v, w in zip(row, widths, strict=True)) for row in cells]
+    return "\n".join(lines)
+
+
+def write_results(name: str, rows: list[dict[str, Any]], columns: list[str]) -> Path:
+    """Print ``rows`` as a table and write bench-results/<name>.json; returns the file path."""
+    info = machine_info()
+    print(f"# {name} on {info['cpu']} ({info['cores']} cores, torch {info.get('torch')})")
+    print(format_table(rows, columns))
+    out_dir = results_dir()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}.json"
+    payload = {"machine": info, "threads": info.get("torch_threads"), "rows": rows}
+    path.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"# wrote {path}")
+    return path

@@ -1,0 +1,135 @@
+"""Differentiable EWA projection of 3D Gaussians to the image plane, with gsplat 1.5 semantics.
+
+Shared by the float64 reference and the native CPU backend so both agree on the 2D Gaussians. The
+rules restated from gsplat's ``fully_fused_projection``: the Jacobian uses the view-space position
+clamped to 1.3x the field of view, ``eps2d`` is added to the 2D covariance before inverting it,
+Gaussians outside ``(near, far)`` or with a non-positive determinant are culled, and the screen
+extent is opacity-aware: ``min(3.33, sqrt(2 ln(255 o)))`` standard deviations per axis.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
+
+ALPHA_THRESHOLD = 1.0 / 255.0
+"""Pairs with alpha below this are skipped (gsplat's ALPHA_THRESHOLD)."""
+MAX_EXTENT_SIGMA = 3.33
+"""Largest screen extent, in standard deviations per axis (gsplat 1.5)."""
+
+
+@dataclass
+class Projected:
+    """2D Gaussians produced by :func:`project`, one row per input Gaussian."""
+
+    means2d: Tensor
+    """(N, 2) projected centres in pixels (differentiable)."""
+    conics: Tensor
+    """(N, 3) upper triangle (a, b, c) of the inverse 2D covariance (differentiable)."""
+    depths: Tensor
+    """(N,) view-space z of the centres (differentiable)."""
+    opacities: Tensor
+    """(N,) sigmoid of the opacity logits (differentiable)."""
+    radii: Tensor
+    """(N, 2) int32 opacity-aware screen extent per axis in pixels; 0 where culled (no grad)."""
+
+
+def quat_to_rotmat(quats: Tensor) -> Tensor:
+    """(N, 4) wxyz quaternions (any norm) to (N, 3, 3) rotation matrices."""
+    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(-1)
+    rows = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]  # fmt: skip
+    return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
+
+
+def _camera_space_means(means: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
+    """View-space means and the view rotation, both in ``means.dtype``.
+
+    ``R m + t`` is computed as ``R (m - c)`` with ``m - c`` formed in float64: far from the origin
+    (1e4 units) the float32 sum ``R m + t`` would cancel catastrophically near the camera.
+    """
+    w2c = camera.world_to_camera.to(device=means.device, dtype=torch.float64)
+    rot64 = w2c[:3, :3]
+    centre64 = -rot64.T @ w2c[:3, 3]
+    rel = (means.to(torch.float64) - centre64).to(means.dtype)
+    rot = rot64.to(means.dtype)
+    return rel @ rot.T, rot
+
+
+def project(
+    means: Tensor,
+    log_scales: Tensor,
+    quats: Tensor,
+    opacity_logits: Tensor,
+    camera: Camera,
+    near: float,
+    far: float,
+    eps2d: float,
+) -> Projected:
+    """Project N 3D Gaussians through ``camera``; every output is finite, culled rows included."""
+    mc, rot = _camera_space_means(means, camera)
+    x, y, z = mc.unbind(-1)
+    in_depth = (z > near) & (z < far)
+    # Culled rows get a harmless stand-in depth so no inf/NaN enters the graph (NaN * 0 = NaN).
+    zs = torch.where(in_depth, z, torch.ones_like(z))
+
+    rq = quat_to_rotmat(quats)
+    m = rq * torch.exp(log_scales).unsqueeze(-2)  # R S: scale the columns
+    cov_world = m @ m.transpose(-1, -2)
+    cov_cam = rot @ cov_world @ rot.T
+
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    w, h = camera.width, camera.height
+    lim_xp = (w - cx) / fx + 0.3 * (0.5 * w / fx)
+    lim_xn = cx / fx + 0.3 * (0.5 * w / fx)
+    lim_yp = (h - cy) / fy + 0.3 * (0.5 * h / fy)
+    lim_yn = cy / fy + 0.3 * (0.5 * h / fy)
+    tx = zs * torch.clamp(x / zs, -lim_xn, lim_xp)
+    ty = zs * torch.clamp(y / zs, -lim_yn, lim_yp)
+    zero = torch.zeros_like(zs)
+    jac = torch.stack(
+        [fx / zs, zero, -fx * tx / (zs * zs), zero, fy / zs, -fy * ty / (zs * zs)], dim=-1
+    ).reshape(-1, 2, 3)
+    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
+    a = cov2d[:, 0, 0] + eps2d
+    b = 0.5 * (cov2d[:, 0, 1] + cov2d[:, 1, 0])
+    c = cov2d[:, 1, 1] + eps2d
+    det = a * c - b * b
+    valid = in_depth & (det > 0) & torch.isfinite(det)
+    det_s = torch.where(valid, det, torch.ones_like(det))
+    conics = torch.stack([c / det_s, -b / det_s, a / det_s], dim=-1)
+    conics = torch.where(valid.unsqueeze(-1), conics, torch.zeros_like(conics))
+    means2d = torch.stack([fx * x / zs + cx, fy * y / zs + cy], dim=-1)
+    opacities = torch.sigmoid(opacity_logits)
+
+    with torch.no_grad():
+        op = opacities.to(torch.float64)
+        valid = valid & (op >= ALPHA_THRESHOLD)
+        extent = torch.sqrt(2.0 * torch.log(op.clamp_min(ALPHA_THRESHOLD) / ALPHA_THRESHOLD))
+        extent = extent.clamp(max=MAX_EXTENT_SIGMA)
+        a64, c64 = a.detach().to(torch.float64), c.detach().to(torch.float64)
+        rx = torch.ceil(extent * torch.sqrt(a64.clamp_min(0)))
+        ry = torch.ceil(extent * torch.sqrt(c64.clamp_min(0)))
+        mx, my = means2d[:, 0].detach().double(), means2d[:, 1].detach().double()
+        inside = (mx + rx > 0) & (mx - rx < w) & (my + ry > 0) & (my - ry < h)
+        keep = valid & inside & (rx > 0) & (ry > 0)
+        big = float(2**30)  # int32-safe cap for enormous Gaussians
+        radii = torch.stack([rx.clamp(max=big), ry.clamp(max=big)], dim=-1)
+        radii = torch.where(keep.unsqueeze(-1), radii, torch.zeros_like(radii)).to(torch.int32)
+    return Projected(means2d, conics, torch.where(in_depth, z, zero), opacities, radii)
+
+
+def max_extent_sigma(opacity: float) -> float:
+    """Screen extent in standard deviations for a Gaussian of the given opacity (for docs/tests)."""
+    if opacity < ALPHA_THRESHOLD:
+        return 0.0
+    return min(MAX_EXTENT_SIGMA, math.sqrt(2.0 * math.log(opacity / ALPHA_THRESHOLD)))
