@@ -75,7 +75,9 @@ class CameraFrame(BaseModel):
             for j in range(3):
                 dot = sum(rot[k][i] * rot[k][j] for k in range(3))
                 if abs(dot - (1.0 if i == j else 0.0)) > 1e-3:
-                    raise ValueError("matrix rotation block is not orthonormal (pose must be rigid)")
+                    raise ValueError(
+                        "matrix rotation block is not orthonormal (pose must be rigid)"
+                    )
         if value[3] != [0.0, 0.0, 0.0, 1.0]:
             raise ValueError("matrix last row must be [0, 0, 0, 1]")
         return value

@@ -15,7 +15,9 @@ import time
 from collections.abc import Iterator
 from typing import Any, TextIO
 
-_job_id: contextvars.ContextVar[str | None] = contextvars.ContextVar("sparsesplat_job_id", default=None)
+_job_id: contextvars.ContextVar[str | None] = contextvars.ContextVar(
+    "sparsesplat_job_id", default=None
+)
 
 # Attributes every LogRecord has; anything else was passed through ``extra=`` and is logged too.
 _STANDARD_ATTRS = frozenset(
@@ -56,7 +58,7 @@ class JsonFormatter(logging.Formatter):
             "event": record.getMessage(),
         }
         if getattr(record, "job_id", None):
-            payload["job_id"] = record.job_id
+            payload["job_id"] = getattr(record, "job_id", None)
         for key, value in vars(record).items():
             if key not in _STANDARD_ATTRS and not key.startswith("_"):
                 payload[key] = value
@@ -76,7 +78,7 @@ class KeyValueFormatter(logging.Formatter):
             record.getMessage(),
         ]
         if getattr(record, "job_id", None):
-            parts.append(f"job_id={record.job_id}")
+            parts.append(f"job_id={getattr(record, 'job_id', None)}")
         for key, value in vars(record).items():
             if key not in _STANDARD_ATTRS and not key.startswith("_"):
                 parts.append(f"{key}={value}")
@@ -86,7 +88,9 @@ class KeyValueFormatter(logging.Formatter):
         return line
 
 
-def configure_logging(level: str = "INFO", json_lines: bool = True, stream: TextIO | None = None) -> None:
+def configure_logging(
+    level: str = "INFO", json_lines: bool = True, stream: TextIO | None = None
+) -> None:
     """Route all logging to one handler on ``stream`` (stderr) with one line per event."""
     handler = logging.StreamHandler(stream or sys.stderr)
     handler.setFormatter(JsonFormatter() if json_lines else KeyValueFormatter())

@@ -66,7 +66,7 @@ class Settings(BaseSettings):
     device: Device = Device.cpu
     """Compute device for training and rendering."""
     workers: int = Field(1, ge=0, le=64)
-    """Local worker processes the server starts (``queue=local``); 0 runs none (external workers)."""
+    """Local worker processes the server starts (``queue=local``); 0: external workers only."""
     torch_threads: int = Field(2, ge=1, le=256)
     """Torch intra-op threads per worker process."""
     api_keys: list[SecretStr] = Field(default_factory=list)

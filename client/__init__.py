@@ -1,8 +1,8 @@
 """Python SDK and command line for sparsesplat (httpx + the api schemas; never torch).
 
-    from sparsesplat.client import Client
-    with Client("http://127.0.0.1:8000") as c:
-        print(c.health().status)
+from sparsesplat.client import Client
+with Client("http://127.0.0.1:8000") as c:
+    print(c.health().status)
 """
 
 from sparsesplat.client.errors import (

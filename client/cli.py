@@ -26,16 +26,36 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "serve": Command("sparsesplat.server.cli", "run the HTTP service (embedded defaults)", "service"),
-    "health": Command("sparsesplat.client.commands", "ask a running service whether it is up", None),
+    "serve": Command(
+        "sparsesplat.server.cli", "run the HTTP service (embedded defaults)", "service"
+    ),
+    "health": Command(
+        "sparsesplat.client.commands", "ask a running service whether it is up", None
+    ),
     "scene": Command("sparsesplat.engine.commands.scene", "inspect a posed scene folder", "engine"),
-    "train": Command("sparsesplat.engine.commands.train", "train a scene locally (paper protocol)", "engine"),
-    "render": Command("sparsesplat.engine.commands.render", "render a trained checkpoint at a camera", "engine"),
-    "fetch-weights": Command("sparsesplat.client.fetch_weights", "download LPIPS weights (needs network)", None),
+    "train": Command(
+        "sparsesplat.engine.commands.train", "train a scene locally (paper protocol)", "engine"
+    ),
+    "render": Command(
+        "sparsesplat.engine.commands.render", "render a trained checkpoint at a camera", "engine"
+    ),
+    "fetch-weights": Command(
+        "sparsesplat.client.fetch_weights", "download LPIPS weights (needs network)", None
+    ),
 }
 
 # Third-party top-level modules each extra brings; a missing one means the extra is missing.
-_EXTRA_MODULES = {"torch", "numpy", "PIL", "skimage", "onnxruntime", "matplotlib", "fastapi", "uvicorn", "starlette"}
+_EXTRA_MODULES = {
+    "torch",
+    "numpy",
+    "PIL",
+    "skimage",
+    "onnxruntime",
+    "matplotlib",
+    "fastapi",
+    "uvicorn",
+    "starlette",
+}
 
 
 def _missing_extra_message(name: str, command: Command, exc: ModuleNotFoundError) -> str:

@@ -76,7 +76,9 @@ def _matches(path: Path, expected: str) -> bool:
     return _sha256(path).startswith(expected.lower())
 
 
-def fetch_one(item: WeightFile, models_dir: Path, base_url: str | None = None, timeout: float = 60.0) -> str:
+def fetch_one(
+    item: WeightFile, models_dir: Path, base_url: str | None = None, timeout: float = 60.0
+) -> str:
     """Ensure ``item`` is in ``models_dir`` with the right checksum; return what was done."""
     target = models_dir / item.name
     if target.is_file() and _matches(target, item.sha256):
@@ -86,7 +88,10 @@ def fetch_one(item: WeightFile, models_dir: Path, base_url: str | None = None, t
     fd, tmp_name = tempfile.mkstemp(dir=models_dir, prefix=f".{item.name}.", suffix=".part")
     tmp = Path(tmp_name)
     try:
-        with os.fdopen(fd, "wb") as out, httpx.stream("GET", url, timeout=timeout, follow_redirects=True) as response:
+        with (
+            os.fdopen(fd, "wb") as out,
+            httpx.stream("GET", url, timeout=timeout, follow_redirects=True) as response,
+        ):
             if response.status_code != 200:
                 raise FetchError(f"{item.name}: {url} answered HTTP {response.status_code}")
             for chunk in response.iter_bytes():
@@ -94,7 +99,8 @@ def fetch_one(item: WeightFile, models_dir: Path, base_url: str | None = None, t
         got = _sha256(tmp)
         if not got.startswith(item.sha256.lower()):
             raise FetchError(
-                f"{item.name}: checksum mismatch for {url}: expected sha256 {item.sha256}…, got {got}"
+                f"{item.name}: checksum mismatch for {url}: "
+                f"expected sha256 {item.sha256}…, got {got}"
             )
         tmp.replace(target)
         return "downloaded"
@@ -108,7 +114,7 @@ def fetch_one(item: WeightFile, models_dir: Path, base_url: str | None = None, t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--models-dir`` (default: the SPARSESPLAT_MODELS_DIR setting) and ``--base-url`` (a mirror)."""
+    """``--models-dir`` (default: SPARSESPLAT_MODELS_DIR) and ``--base-url`` (a mirror)."""
     parser.add_argument("--models-dir", type=Path, help="target directory (SPARSESPLAT_MODELS_DIR)")
     parser.add_argument("--base-url", help="fetch every file as BASE_URL/<name> from a mirror")
     parser.add_argument("--only", nargs="*", help="file names to fetch (default: all)")
