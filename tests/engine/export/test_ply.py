@@ -124,14 +124,14 @@ def test_bad_shapes_raise_typed_error(
 def test_reader_rejects_non_ply_and_truncated(tmp_path: Path) -> None:
     bogus = tmp_path / "bogus.ply"
     bogus.write_bytes(b"hello")
-    with pytest.raises(ExportError, match="bogus.ply"):
+    with pytest.raises(ExportError, match=r"bogus\.ply"):
         read_ply(bogus)
     path = tmp_path / "t.ply"
     export_ply(path, **random_gaussians(10, 0, 4))
     path.write_bytes(path.read_bytes()[:-8])
     with pytest.raises(ExportError, match="truncated"):
         read_ply(path)
-    with pytest.raises(ExportError, match="missing.ply"):
+    with pytest.raises(ExportError, match=r"missing\.ply"):
         read_ply(tmp_path / "missing.ply")
 
 

@@ -67,5 +67,5 @@ def test_non_finite_dropped_and_bad_shape(tmp_path: Path, seed: int) -> None:
 def test_reader_rejects_partial_records(tmp_path: Path) -> None:
     path = tmp_path / "odd.splat"
     path.write_bytes(b"\0" * 33)
-    with pytest.raises(ExportError, match="odd.splat"):
+    with pytest.raises(ExportError, match=r"odd\.splat"):
         read_splat(path)
