@@ -1,0 +1,329 @@
+"""``make bench-quality``: train scenes with the paper protocol and tabulate held-out quality.
+
+For every scene (default: every scene under ``<repo>/../shared/data`` or
+``$SPARSESPLAT_SHARED_DATA``) and every variant, train with the preset of the scene's format
+and record views, iterations, seconds, Gaussians, PSNR, SSIM, LPIPS and AVGE. Variants:
+
+- ``full``: the preset as is (its default depth prior);
+- ``no_depth``: the same without depth regularization (``depth_prior='none'``);
+- ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...).
+
+A variant whose effective configuration equals one already trained for that scene (``full``
+and ``prior:<preset default>``) reuses that run's row instead of training twice.
+
+A full sweep takes hours on 2 cores, so the results file is rewritten after every (scene,
+variant) and a rerun skips entries already in it with the same views and iterations (``--fresh``
+retrains them). Run it in the background, e.g.
+``nohup python -m sparsesplat.engine.bench.quality --iterations 1000 > quality.log 2>&1 &``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
+from sparsesplat.engine.errors import PriorError
+
+COLUMNS = [
+    "scene",
+    "variant",
+    "views",
+    "iterations",
+    "seconds",
+    "gaussians",
+    "psnr",
+    "ssim",
+    "lpips",
+    "avge",
+]
+"""Table columns, in order (rows also carry prior, format, sh_baking_psnr, wall_s, error)."""
+
+DEFAULT_VARIANTS = ("full", "no_depth", "prior:pydnet", "prior:plane_sweep")
+"""Variants run when ``--variants`` is not given."""
+
+PRESET_OF_FORMAT = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
+"""Preset per scene format (the paper protocol); other formats use ``default``."""
+
+# Config fields counted in iterations. With ``--iterations`` below the preset's count they are
+# scaled by the same factor, so a shortened run still densifies, decays its position learning
+# rate and switches on its depth terms at the same fractions of the run as the full protocol.
+# densify_interval is kept: its gradient statistics need ~100 iterations (33 per view) to settle.
+ITERATION_FIELDS = (
+    "lr_means_start",
+    "lr_means_steps",
+    "densify_from",
+    "densify_until",
+    "hard_depth_start",
+    "soft_depth_start",
+    "depth_until",
+    "depth_smooth_start",
+    "sh_degree_interval",
+    "opacity_reset_interval",
+)
+
+
+def default_data_root() -> Path:
+    """``$SPARSESPLAT_SHARED_DATA`` or ``<repo>/../shared/data``."""
+    env = os.environ.get("SPARSESPLAT_SHARED_DATA")
+    if env:
+        return Path(env)
+    repo = Path(__file__).resolve().parents[2]
+    return repo.parent / "shared" / "data"
+
+
+def find_scenes(roots: Sequence[Path], max_depth: int = 3) -> list[Path]:
+    """Scene folders under ``roots`` (a root that is itself a scene counts), sorted by path."""
+    from sparsesplat.engine.datasets import detect_format
+    from sparsesplat.engine.errors import SceneError
+
+    found: list[Path] = []
+
+    def visit(path: Path, depth: int) -> None:
+        try:
+            detect_format(path)
+            found.append(path)
+            return
+        except SceneError:
+            pass
+        if depth < max_depth:
+            for child in sorted(p for p in path.iterdir() if p.is_dir()):
+                visit(child, depth + 1)
+
+    for root in roots:
+        if not root.is_dir():
+            raise SystemExit(f"bench-quality: {root} is not a folder")
+        visit(root, 0)
+    return sorted(dict.fromkeys(found))
+
+
+def scale_schedule(config: Any, iterations: int) -> Any:
+    """``config`` with ``iterations`` set and iteration-counted fields scaled to match.
+
+    Only shortening scales the schedule; a longer run keeps the preset's schedule (the extra
+    iterations then refine at the final learning rate, as the reference does).
+    """
+    factor = min(1.0, iterations / config.iterations)
+    changes: dict[str, Any] = {"iterations": iterations}
+    if factor < 1.0:
+        for name in ITERATION_FIELDS:
+            value = getattr(config, name, None)
+            if isinstance(value, int) and not isinstance(value, bool):
+                changes[name] = max(1, round(value * factor))
+        clean = getattr(config, "clean_iterations", ())
+        changes["clean_iterations"] = tuple(sorted({max(1, round(i * factor)) for i in clean}))
+    return dataclasses.replace(config, **changes).validate()
+
+
+def variant_config(base: Any, variant: str) -> Any:
+    """The config of ``variant`` derived from the preset config ``base``."""
+    if variant == "full":
+        return base
+    if variant == "no_depth":
+        return dataclasses.replace(base, depth_prior="none")
+    kind, _, prior = variant.partition(":")
+    if kind == "prior" and prior:
+        return dataclasses.replace(base, depth_prior=prior)
+    raise SystemExit(f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND)")
+
+
+def _entry_key(row: dict[str, Any]) -> tuple[Any, ...]:
+    return (row["scene"], row["variant"], row["views"], row["iterations"])
+
+
+def _load_rows(path: Path) -> list[dict[str, Any]]:
+    """Rows of an earlier (possibly partial) results file; [] when absent or unreadable."""
+    try:
+        return list(json.loads(path.read_text()).get("rows", []))
+    except (OSError, ValueError, AttributeError):
+        return []
+
+
+def _save(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write the results file atomically in the bench-results shape."""
+    info = machine_info()
+    payload = {"machine": info, "threads": info.get("torch_threads"), "rows": rows}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=str) + "\n")
+    tmp.replace(path)
+
+
+class _PriorCache:
+    """Depth priors per (scene path, kind), computed once per process."""
+
+    def __init__(self) -> None:
+        self._cache: dict[tuple[str, str], Any] = {}
+
+    def get(self, scene_path: Path, scene: Any, kind: str) -> Any:
+        key = (str(scene_path), kind)
+        if key not in self._cache:
+            try:
+                from sparsesplat.engine.priors import compute_priors
+            except ImportError as exc:
+                raise PriorError(
+                    f"depth prior {kind!r}: priors module unavailable: {exc}"
+                ) from None
+            self._cache[key] = compute_priors(scene, kind)
+        return self._cache[key]
+
+
+def run_entry(
+    scene_path: Path,
+    scene: Any,
+    variant: str,
+    config: Any,
+    priors: _PriorCache,
+    out_dir: Path,
+    device: str,
+) -> dict[str, Any]:
+    """Train one (scene, variant) and return its table row (``error`` set on a failed run)."""
+    from sparsesplat.engine.errors import EngineError
+    from sparsesplat.engine.train import Trainer
+
+    row: dict[str, Any] = {
+        "scene": scene.name,
+        "path": str(scene_path),
+        "format": scene.format,
+        "variant": variant,
+        "prior": config.depth_prior if config.uses_depth else "none",
+        "views": len(scene.train),
+        "iterations": config.iterations,
+    }
+    t0 = time.perf_counter()
+    try:
+        depth = priors.get(scene_path, scene, config.depth_prior) if config.uses_depth else None
+        result = Trainer(scene, config, depth, out_dir, device=device).run()
+    except EngineError as exc:  # one failed entry must not end a sweep of hours
+        row.update(error=f"{type(exc).__name__}: {exc}", wall_s=time.perf_counter() - t0)
+        return row
+    m = result.metrics
+    row.update(
+        seconds=result.seconds,
+        gaussians=result.n_gaussians,
+        psnr=m.get("psnr"),
+        ssim=m.get("ssim"),
+        lpips=m.get("lpips"),
+        avge=m.get("avge"),
+        sh_baking_psnr=m.get("sh_baking_psnr"),
+        wall_s=time.perf_counter() - t0,
+        out_dir=str(out_dir),
+    )
+    return row
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Command-line options of the quality benchmark."""
+    parser.add_argument("paths", nargs="*", type=Path, help="scene folders or folders of scenes")
+    parser.add_argument("--scenes", default="", help="comma list: only scenes with these names")
+    parser.add_argument(
+        "--variants",
+        default=",".join(DEFAULT_VARIANTS),
+        help="comma list of full, no_depth, prior:KIND",
+    )
+    parser.add_argument("--iterations", type=int, default=None, help="override (scales schedule)")
+    parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")
+    parser.add_argument("--out", type=Path, default=None, help="results JSON")
+    parser.add_argument("--runs-dir", type=Path, default=None, help="per-run outputs")
+    parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument("--seed", type=int, default=0, help="trainer seed")
+    parser.add_argument("--downscale", type=int, default=1, help="extra image shrink (smoke runs)")
+    parser.add_argument(
+        "--eval-max-views", type=int, default=4, help="held-out views per interim eval"
+    )
+    parser.add_argument("--no-export", action="store_true", help="skip .ply/.splat export")
+    parser.add_argument("--fresh", action="store_true", help="retrain entries already in --out")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the sweep; returns 0 when every entry trained, 1 when some failed."""
+    import torch
+
+    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.train import preset
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    out = args.out or results_dir() / "quality.json"
+    runs_dir = args.runs_dir or out.parent / "quality-runs"
+    roots = list(args.paths) or [default_data_root()]
+    scenes = find_scenes(roots)
+    wanted = {s for s in args.scenes.split(",") if s}
+    if wanted:
+        scenes = [p for p in scenes if p.name in wanted]
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    if not scenes:
+        print(f"bench-quality: no scenes found under {', '.join(map(str, roots))}")
+        return 1
+
+    rows = [] if args.fresh else [r for r in _load_rows(out) if not r.get("error")]
+    done = {_entry_key(r) for r in rows}
+    priors = _PriorCache()
+    failed = 0
+    for scene_path in scenes:
+        scene = load_scene(scene_path, views=args.views, downscale=args.downscale)
+        base = preset(PRESET_OF_FORMAT.get(scene.format, "default"), seed=args.seed)
+        base = dataclasses.replace(
+            base,
+            eval_max_views=args.eval_max_views,
+            export=not args.no_export,
+            checkpoint_interval_s=0.0,
+        )
+        if args.iterations:
+            base = scale_schedule(base, args.iterations)
+        trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> row of this scene
+        for variant in variants:
+            config = variant_config(base, variant)
+            key = (scene.name, variant, len(scene.train), config.iterations)
+            if key in done:
+                print(f"[skip] {scene.name} {variant}: already in {out}", flush=True)
+                continue
+            ident = json.dumps(config.to_dict(), sort_keys=True, default=str)
+            if ident in trained:
+                row = dict(trained[ident], variant=variant, same_run_as=trained[ident]["variant"])
+            else:
+                print(f"[run] {scene.name} {variant} ({config.iterations} it)", flush=True)
+                row = run_entry(
+                    scene_path,
+                    scene,
+                    variant,
+                    config,
+                    priors,
+                    runs_dir / scene.name / variant.replace(":", "_"),
+                    args.device,
+                )
+                if row.get("error"):
+                    failed += 1
+                    print(f"[fail] {scene.name} {variant}: {row['error']}", flush=True)
+                else:
+                    trained[ident] = row
+            rows = [r for r in rows if _entry_key(r) != key] + [row]
+            _save(out, rows)  # partial results after every entry: a sweep can stop any time
+            print(format_table([row], COLUMNS), flush=True)
+    info = machine_info()
+    print(
+        f"# quality on {info['cpu']} ({info['cores']} cores, "
+        f"torch threads {info.get('torch_threads')})"
+    )
+    print(format_table(rows, COLUMNS))
+    print(f"# wrote {out}")
+    return 1 if failed else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m sparsesplat.engine.bench.quality``."""
+    parser = argparse.ArgumentParser(prog="bench-quality", description=__doc__.split("\n")[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
