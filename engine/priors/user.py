@@ -1,0 +1,29 @@
+"""User-supplied depth maps (uploaded with the images, carried as ``View.depth``)."""
+
+from __future__ import annotations
+
+import torch
+
+from sparsesplat.engine.errors import PriorError
+from sparsesplat.engine.priors.base import PriorDepth
+from sparsesplat.engine.scene import Scene
+
+
+def user_priors(scene: Scene) -> list[PriorDepth]:
+    """One prior per training view from its uploaded depth; pixels <= 0 or non-finite are
+    invalid (confidence 0). Every training view must carry a depth map."""
+    out = []
+    for view in scene.train:
+        if view.depth is None:
+            raise PriorError(
+                f"scene {scene.name!r}: training view {view.name!r} has no user depth map "
+                "(add 'depth' to its frame in cameras.json, or choose another prior)"
+            )
+        depth = view.depth.float()
+        h, w = view.image.shape[:2]
+        if tuple(depth.shape) != (h, w):
+            raise PriorError(f"view {view.name!r}: depth is {tuple(depth.shape)}, image {(h, w)}")
+        valid = torch.isfinite(depth) & (depth > 0)
+        depth = torch.where(valid, depth, torch.zeros_like(depth))
+        out.append(PriorDepth(depth, valid.float(), metric=True, kind="user"))
+    return out
