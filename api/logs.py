@@ -21,7 +21,8 @@ _job_id: contextvars.ContextVar[str | None] = contextvars.ContextVar(
 
 # Attributes every LogRecord has; anything else was passed through ``extra=`` and is logged too.
 _STANDARD_ATTRS = frozenset(
-    vars(logging.LogRecord("", 0, "", 0, "", None, None)).keys() | {"message", "asctime", "job_id"}
+    vars(logging.LogRecord("", 0, "", 0, "", None, None)).keys()
+    | {"message", "asctime", "job_id", "color_message"}  # uvicorn's ANSI duplicate of the message
 )
 
 
