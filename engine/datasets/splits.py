@@ -12,8 +12,33 @@ LLFF_HOLDOUT = 8
 DTU_TRAIN_ORDER = (25, 22, 28, 40, 44, 48, 0, 8, 13)
 """DTU: the first n of these camera indices are the n training views."""
 
-DTU_TEST = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43,
-            45, 46, 47)  # fmt: skip
+DTU_TEST = (
+    1,
+    2,
+    9,
+    10,
+    11,
+    12,
+    14,
+    15,
+    23,
+    24,
+    26,
+    27,
+    29,
+    30,
+    31,
+    32,
+    33,
+    34,
+    35,
+    41,
+    42,
+    43,
+    45,
+    46,
+    47,
+)
 """DTU: the 25 test camera indices (the excluded views 3-7, 16-21, 36-39 are never used)."""
 
 BLENDER_TRAIN_ORDER = (26, 86, 2, 55, 75, 93, 16, 73, 8)
