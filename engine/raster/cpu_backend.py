@@ -1,11 +1,58 @@
-"""Native CPU backend (temporary dense float32 path until the C++ kernel lands)."""
+"""Native CPU backend: torch projection + the C++/OpenMP tile kernel with an analytic backward."""
 
 from __future__ import annotations
 
+from typing import Any
+
+import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.raster.build import load_extension
+from sparsesplat.engine.raster.projection import project
 from sparsesplat.engine.raster.types import RasterOutput
+
+
+class _Blend(torch.autograd.Function):
+    """Blending of projected 2D Gaussians; the backward is the kernel's analytic gradient."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means2d: Tensor,
+        conics: Tensor,
+        opacities: Tensor,
+        depths: Tensor,
+        features: Tensor,
+        background: Tensor,
+        radii: Tensor,
+        width: int,
+        height: int,
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        ext = load_extension()
+        out = ext.forward(
+            means2d, conics, opacities, depths, radii, features, background, width, height, True
+        )
+        image, depth, alpha, stats = out[:4]
+        ctx.save_for_backward(background, *out[4:])
+        ctx.n = means2d.shape[0]
+        ctx.mark_non_differentiable(stats)
+        return image, depth, alpha, stats
+
+    @staticmethod
+    def backward(  # type: ignore[override]
+        ctx: Any, v_image: Tensor, v_depth: Tensor, v_alpha: Tensor, _v_stats: Tensor
+    ) -> tuple[Tensor | None, ...]:
+        background, recs, feats, rank, offsets, lists, t_final, last = ctx.saved_tensors
+        ext = load_extension()
+        v_m2, v_con, v_op, v_dep, v_feat = ext.backward(
+            recs, feats, rank, offsets, lists, t_final, last, background,
+            v_image.contiguous(), v_depth.contiguous(), v_alpha.contiguous(), ctx.n,
+        )  # fmt: skip
+        v_bg = None
+        if ctx.needs_input_grad[5]:
+            v_bg = (v_image * t_final.unsqueeze(0)).sum(dim=(1, 2))
+        return v_m2, v_con, v_op, v_dep, v_feat, v_bg, None, None, None
 
 
 def rasterize_cpu(
@@ -20,12 +67,26 @@ def rasterize_cpu(
     far: float,
     eps2d: float,
 ) -> RasterOutput:
-    """Render on the CPU (float32)."""
-    import torch
-
-    from sparsesplat.engine.raster.reference import rasterize_reference
-
-    return rasterize_reference(
-        means, log_scales, quats, opacity_logits, features, camera, background, near, far,
-        eps2d, dtype=torch.float32,
-    )  # fmt: skip
+    """Render float32 CPU tensors with the native kernel (see ``rasterize`` for the contract)."""
+    ext = load_extension()  # build/load before any work so a build failure is the first error
+    proj = project(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)
+    w, h = camera.width, camera.height
+    radii = proj.radii.contiguous()
+    tensors = (proj.means2d, proj.conics, proj.opacities, proj.depths, features, background)
+    needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+    if needs_grad:
+        proj.means2d.retain_grad() if proj.means2d.requires_grad else None
+        parts = [t.contiguous() for t in tensors]
+        image, depth, alpha, stats = _Blend.apply(*parts, radii, w, h)
+    else:
+        # Forward only: the kernel keeps no backward state (no T_final / last-index buffers).
+        parts = [t.detach().contiguous() for t in tensors]
+        image, depth, alpha, stats = ext.forward(*parts[:4], radii, *parts[4:], w, h, False)[:4]
+    return RasterOutput(
+        image=image,
+        depth=depth,
+        alpha=alpha,
+        radii=radii.max(dim=-1).values.to(torch.int32),
+        means2d=proj.means2d,
+        stats={"pairs_evaluated": int(stats[0]), "pairs_blended": int(stats[1])},
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from torch import Tensor
 
@@ -23,3 +24,5 @@ class RasterOutput:
     """(N, 2) projected centres in pixels. When gradients are enabled it is part of the graph and
     has ``retain_grad()`` set, so after ``backward()`` its ``.grad`` holds the screen-space
     gradient that densification accumulates."""
+    stats: dict[str, Any] | None = None
+    """Backend counters when available (CPU: ``pairs_evaluated``, ``pairs_blended``), else None."""

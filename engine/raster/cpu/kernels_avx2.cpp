@@ -1,0 +1,4 @@
+// Tile kernels for the x86-64-v3 baseline (AVX2 + FMA, the flags given to the whole build).
+#define RASTER_NS avx2
+#define RASTER_AVX512 0
+#include "kernels.h"
