@@ -1,0 +1,124 @@
+"""The upload folder format and the typed errors for bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sparsesplat.engine.datasets import load_scene
+from sparsesplat.engine.errors import SceneError
+from tests.engine.scenes.synthetic import write_folder_scene
+
+
+def _edit(root: Path, fn) -> None:  # type: ignore[no-untyped-def]
+    meta = json.loads((root / "cameras.json").read_text())
+    fn(meta)
+    (root / "cameras.json").write_text(json.dumps(meta))
+
+
+def test_folder_scene_loads(tmp_path: Path) -> None:
+    root = write_folder_scene(tmp_path / "s", count=5, depth=True)
+    scene = load_scene(root)
+    assert scene.format == "folder" and len(scene.train) == 4 and len(scene.test) == 1
+    assert scene.train_indices == [0, 1, 2, 3] and scene.test_indices == [4]
+    view = scene.train[0]
+    assert view.depth is not None and torch.allclose(view.depth, torch.full((32, 48), 3.0))
+    # The camera looks at the origin from distance 3: the origin projects to the centre.
+    pix = view.camera.world_to_camera[:3, 3]
+    assert abs(float(pix[2]) - 3.0) < 1e-5 and abs(float(pix[0])) < 1e-5
+    assert 2.0 < scene.near < 3.0 < scene.far < 4.0, "bounds come from the user depth"
+    assert len(load_scene(root, views=2).train) == 2
+
+
+def test_opengl_convention_gives_same_cameras(tmp_path: Path) -> None:
+    root = write_folder_scene(tmp_path / "s")
+    cv = load_scene(root)
+
+    def to_gl(meta: dict) -> None:
+        meta["convention"] = "opengl"
+        for f in meta["frames"]:
+            f["matrix"] = (np.array(f["matrix"]) @ np.diag([1.0, -1.0, -1.0, 1.0])).tolist()
+
+    _edit(root, to_gl)
+    gl = load_scene(root)
+    for a, b in zip(cv.train, gl.train, strict=True):
+        assert torch.allclose(a.camera.world_to_camera, b.camera.world_to_camera, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "breaker, message",
+    [
+        (lambda m: m["frames"][0].update(matrix=[[float("nan")] * 4] * 4), "NaN"),
+        (lambda m: m["frames"][1]["matrix"][0].__setitem__(0, 3.0), "not rigid"),
+        (lambda m: m["frames"][0].update(width=99), "99x32"),
+        (lambda m: m["frames"][0].update(image="missing.png"), "not found"),
+        (lambda m: [f.update(split="test") for f in m["frames"][1:]], "at least 2"),
+        (lambda m: m.update(convention="weird"), "convention"),
+        (lambda m: m["frames"][0].update(depth="nodepth.npy"), "nodepth.npy"),
+    ],
+)
+def test_bad_folder_input_raises_scene_error(tmp_path: Path, breaker, message: str) -> None:  # type: ignore[no-untyped-def]
+    root = write_folder_scene(tmp_path / "s")
+    _edit(root, breaker)
+    with pytest.raises(SceneError, match=message):
+        load_scene(root)
+
+
+def test_truncated_and_garbage_images(tmp_path: Path) -> None:
+    root = write_folder_scene(tmp_path / "s")
+    data = (root / "view_1.png").read_bytes()
+    (root / "view_1.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(SceneError, match=r"view_1\.png"):
+        load_scene(root)
+    (root / "view_1.png").write_bytes(b"not an image at all")
+    with pytest.raises(SceneError, match=r"view_1\.png"):
+        load_scene(root)
+
+
+def test_image_size_disagrees_with_intrinsics(tmp_path: Path) -> None:
+    root = write_folder_scene(tmp_path / "s")
+    _edit(root, lambda m: m["frames"][2].pop("width"))
+    from PIL import Image
+
+    Image.new("RGB", (20, 20)).save(root / "view_2.png")
+    _edit(root, lambda m: m["frames"][2].update(width=48, height=32))
+    with pytest.raises(SceneError, match=r"view_2\.png"):
+        load_scene(root)
+
+
+def test_missing_and_unknown_folders(tmp_path: Path) -> None:
+    with pytest.raises(SceneError, match="not found"):
+        load_scene(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SceneError, match="unknown scene format"):
+        load_scene(tmp_path / "empty")
+
+
+def test_llff_errors(tmp_path: Path) -> None:
+    root = tmp_path / "llff"
+    (root / "images").mkdir(parents=True)
+    from PIL import Image
+
+    for i in range(10):
+        Image.new("RGB", (16, 12)).save(root / "images" / f"{i:03d}.png")
+    rows = np.zeros((10, 17))
+    for i in range(10):
+        mat = np.zeros((3, 5))
+        mat[:, :3] = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]
+        mat[:, 4] = [12, 16, 20]
+        rows[i, :15], rows[i, 15:] = mat.reshape(-1), [1, 5]
+    rows[3, 0] = 2.0  # non-rigid rotation in row 3
+    np.save(root / "poses_bounds.npy", rows)
+    with pytest.raises(SceneError, match="row 3"):
+        load_scene(root)
+    rows[3, 0] = 0.0
+    np.save(root / "poses_bounds.npy", rows[:9])
+    with pytest.raises(SceneError, match="9 poses but 10 images"):
+        load_scene(root)
+    np.save(root / "poses_bounds.npy", rows)
+    scene = load_scene(root, views=2)
+    assert scene.train_indices == [1, 9] and scene.test_indices == [0, 8]
