@@ -79,6 +79,16 @@ def default_data_root() -> Path:
     return repo.parent / "shared" / "data"
 
 
+def use_shared_models() -> None:
+    """Point ``$SPARSESPLAT_MODELS_DIR`` at ``<repo>/../shared/models`` when it is unset and
+    that folder exists, so LPIPS (and AVGE) are measured without a fetch-weights step."""
+    from sparsesplat.engine.weights import MODELS_DIR_ENV
+
+    shared = Path(__file__).resolve().parents[2].parent / "shared" / "models"
+    if not os.environ.get(MODELS_DIR_ENV) and shared.is_dir():
+        os.environ[MODELS_DIR_ENV] = str(shared)
+
+
 def find_scenes(roots: Sequence[Path], max_depth: int = 3) -> list[Path]:
     """Scene folders under ``roots`` (a root that is itself a scene counts), sorted by path."""
     from sparsesplat.engine.datasets import detect_format
@@ -252,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    use_shared_models()
     out = args.out or results_dir() / "quality.json"
     runs_dir = args.runs_dir or out.parent / "quality-runs"
     roots = list(args.paths) or [default_data_root()]
