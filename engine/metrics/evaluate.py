@@ -53,9 +53,15 @@ class SceneScores:
 class Evaluator:
     """Scores lists of (render, gt, mask) triples; holds one LPIPS network."""
 
-    def __init__(self, models_dir: Path | None = None, quantize_8bit: bool = True) -> None:
-        """``quantize_8bit``: round both images to 8 bits first, as the reference does."""
-        self.lpips = LPIPS(models_dir)
+    def __init__(
+        self,
+        models_dir: Path | None = None,
+        quantize_8bit: bool = True,
+        lpips: LPIPS | None = None,
+    ) -> None:
+        """``quantize_8bit``: round both images to 8 bits first, as the reference does;
+        ``lpips``: an already built network to share (else one is loaded)."""
+        self.lpips = lpips if lpips is not None else LPIPS(models_dir)
         self.quantize_8bit = quantize_8bit
 
     def score_view(self, render: Any, gt: Any, mask: Any | None = None) -> dict[str, float]:
