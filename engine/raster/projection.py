@@ -82,10 +82,11 @@ def project(
     # Culled rows get a harmless stand-in depth so no inf/NaN enters the graph (NaN * 0 = NaN).
     zs = torch.where(in_depth, z, torch.ones_like(z))
 
+    # Covariance factor in camera space, V = R_view R_q S, so cov_cam = V V^T. (R_q^T R_view^T) is
+    # one (3N, 3) x (3, 3) GEMM; batched 3x3 matmuls are several times slower in torch.
     rq = quat_to_rotmat(quats)
-    m = rq * torch.exp(log_scales).unsqueeze(-2)  # R S: scale the columns
-    cov_world = m @ m.transpose(-1, -2)
-    cov_cam = rot @ cov_world @ rot.T
+    v = (rq.transpose(-1, -2).reshape(-1, 3) @ rot.T).reshape(-1, 3, 3).transpose(-1, -2)
+    v = v * torch.exp(log_scales).unsqueeze(-2)  # scale the columns
 
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     w, h = camera.width, camera.height
@@ -93,22 +94,23 @@ def project(
     lim_xn = cx / fx + 0.3 * (0.5 * w / fx)
     lim_yp = (h - cy) / fy + 0.3 * (0.5 * h / fy)
     lim_yn = cy / fy + 0.3 * (0.5 * h / fy)
-    tx = zs * torch.clamp(x / zs, -lim_xn, lim_xp)
-    ty = zs * torch.clamp(y / zs, -lim_yn, lim_yp)
     zero = torch.zeros_like(zs)
-    jac = torch.stack(
-        [fx / zs, zero, -fx * tx / (zs * zs), zero, fy / zs, -fy * ty / (zs * zs)], dim=-1
-    ).reshape(-1, 2, 3)
-    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
-    a = cov2d[:, 0, 0] + eps2d
-    b = 0.5 * (cov2d[:, 0, 1] + cov2d[:, 1, 0])
-    c = cov2d[:, 1, 1] + eps2d
+    inv_z = 1.0 / zs
+    # Jacobian rows of the perspective map at the FoV-clamped position (gsplat's persp_proj):
+    # J0 = (fx / z, 0, -fx tx / z^2), J1 = (0, fy / z, -fy ty / z^2), with tx / z clamped.
+    ux = torch.clamp(x * inv_z, -lim_xn, lim_xp)
+    uy = torch.clamp(y * inv_z, -lim_yn, lim_yp)
+    t0 = (fx * inv_z).unsqueeze(-1) * (v[:, 0] - ux.unsqueeze(-1) * v[:, 2])  # J0 V
+    t1 = (fy * inv_z).unsqueeze(-1) * (v[:, 1] - uy.unsqueeze(-1) * v[:, 2])  # J1 V
+    a = (t0 * t0).sum(-1) + eps2d
+    b = (t0 * t1).sum(-1)
+    c = (t1 * t1).sum(-1) + eps2d
     det = a * c - b * b
     valid = in_depth & (det > 0) & torch.isfinite(det)
     det_s = torch.where(valid, det, torch.ones_like(det))
     conics = torch.stack([c / det_s, -b / det_s, a / det_s], dim=-1)
     conics = torch.where(valid.unsqueeze(-1), conics, torch.zeros_like(conics))
-    means2d = torch.stack([fx * x / zs + cx, fy * y / zs + cy], dim=-1)
+    means2d = torch.stack([fx * x * inv_z + cx, fy * y * inv_z + cy], dim=-1)
     opacities = torch.sigmoid(opacity_logits)
 
     with torch.no_grad():
