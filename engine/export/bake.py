@@ -109,7 +109,7 @@ def bake_sh(
     # Accumulate b = sum_j w_j Y_j^T (f_j - 0.5) over the sphere with w_j = 1 / D.
     b = torch.zeros(n_gaussians, k, 3, dtype=f64)
     for j in range(n_dirs):
-        d = sphere[j].to(device=device, dtype=torch.float32).expand(n_gaussians, 3)
+        d = sphere[j].to(device=device, dtype=torch.float32).expand(n_gaussians, 3).contiguous()
         target = _call(color_fn, d, n_gaussians, f64) - 0.5
         b += basis[j][None, :, None] * target[:, None, :] / n_dirs
     gram = basis.T @ basis / n_dirs  # (K, K), well conditioned for a Fibonacci set
