@@ -105,7 +105,10 @@ def project(
     a = (t0 * t0).sum(-1) + eps2d
     b = (t0 * t1).sum(-1)
     c = (t1 * t1).sum(-1) + eps2d
-    det = a * c - b * b
+    # det(T T^T + eps I) via Lagrange's identity, |t0 x t1|^2 + eps (a0 + c0) + eps^2: the plain
+    # a c - b^2 cancels catastrophically in float32 for needle-like (near-singular) footprints.
+    cross = torch.linalg.cross(t0, t1, dim=-1)
+    det = (cross * cross).sum(-1) + eps2d * (a + c - eps2d)
     valid = in_depth & (det > 0) & torch.isfinite(det)
     det_s = torch.where(valid, det, torch.ones_like(det))
     conics = torch.stack([c / det_s, -b / det_s, a / det_s], dim=-1)

@@ -151,7 +151,7 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics,
       // that passes the alpha test inside the cull ellipse despite rounding.
       const float t = std::log(std::max(g.o * 255.0f, 1.0f));
       const float tm = t * 1.002f + 1e-3f;
-      g.det = g.a * g.c - g.b * g.b;
+      g.det = (float)((double)g.a * g.c - (double)g.b * g.b);  // double: cancels when thin
       g.inv_a = 1.0f / g.a;
       g.two_a_t = 2.0f * g.a * tm;
       g.hx = std::sqrt(std::max(2.0f * tm * g.c / g.det, 0.0f));
