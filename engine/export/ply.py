@@ -60,7 +60,7 @@ def export_ply(
     n = g.means.shape[0]
     # (N, K, 3) -> DC (N, 3) and channel-major rest (N, 3, K-1) flattened, as INRIA writes it.
     dc = g.sh[:, 0, :]
-    rest = g.sh[:, 1:, :].transpose(1, 2).reshape(n, -1)
+    rest = g.sh[:, 1:, :].transpose(1, 2).reshape(n, 3 * (g.sh.shape[1] - 1))
     columns = torch.cat(
         [g.means, torch.zeros(n, 3), dc, rest, g.opacity_logits[:, None], g.log_scales, g.quats],
         dim=1,

@@ -152,3 +152,15 @@ def test_reader_accepts_other_order_and_types(tmp_path: Path, seed: int) -> None
     np.testing.assert_array_equal(back["means"][:, 2].numpy(), col["z"], err_msg=f"seed {seed}")
     np.testing.assert_array_equal(back["sh"][:, 2, 1].numpy(), col["f_rest_4"])
     np.testing.assert_array_equal(back["quats"][:, 3].numpy(), col["rot_3"])
+
+
+def test_empty_model_round_trips(tmp_path: Path) -> None:
+    """A run that pruned every Gaussian still exports valid (empty) files."""
+    from sparsesplat.engine.export import export_splat, read_splat
+
+    g = random_gaussians(0, 3, 0)
+    assert export_ply(tmp_path / "e.ply", **g) == 0
+    back = read_ply(tmp_path / "e.ply")
+    assert back["sh"].shape == (0, 16, 3) and back["means"].shape == (0, 3)
+    assert export_splat(tmp_path / "e.splat", **g) == 0
+    assert read_splat(tmp_path / "e.splat")["means"].shape == (0, 3)
