@@ -40,6 +40,9 @@ class SweepConfig:
     """Grey-level std in the window below which a pixel is untextured (confidence 0)."""
     consistency: float = 0.02
     """Relative depth tolerance of the cross-view check; 0 disables the check."""
+    smooth: int = 9
+    """Side of the box filter applied to the aggregated cost volume (0 = off): a cheap
+    cost-volume aggregation that suppresses isolated wrong winners in weak texture."""
     chunk: int = 8
     """Depth hypotheses evaluated per batch (memory vs speed)."""
     near: float | None = None
@@ -127,6 +130,8 @@ def sweep_view(
         agg = costs.min(dim=0).values  # (D, H, W)
     else:
         agg = costs.topk(keep, dim=0, largest=False).values.mean(0)
+    if cfg.smooth > 1:
+        agg = _box(agg[:, None], cfg.smooth)[:, 0]
     best = agg.argmin(0)  # (H, W)
     c0 = agg.gather(0, best[None])[0]
     lo = agg.gather(0, (best - 1).clamp_min(0)[None])[0]
