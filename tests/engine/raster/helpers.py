@@ -103,7 +103,10 @@ def assert_matches_reference(
         scale = float(b.abs().max().clamp_min(1.0))
         err = float((a - b).abs().max()) / scale
         assert err < tol, f"{what}: {name} differs from reference by {err:.3g} (seed {seed})"
-    assert torch.equal(out.radii, ref.radii), f"{what}: radii differ (seed {seed})"
+    # Culling must agree exactly; the ceil'd extent may differ by a pixel for huge footprints.
+    assert torch.equal(out.radii > 0, ref.radii > 0), f"{what}: culling differs (seed {seed})"
+    slack = (ref.radii.double() * 1e-5).clamp_min(1.0)
+    assert ((out.radii - ref.radii).abs() <= slack).all(), f"{what}: radii differ (seed {seed})"
     for name, a, b in zip(PARAM_NAMES, grads, ref_grads, strict=True):
         err = rel_err(a, b)
         assert err < tol, f"{what}: grad of {name} rel err {err:.3g} vs reference (seed {seed})"
