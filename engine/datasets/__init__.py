@@ -77,4 +77,31 @@ def load_scene(
     return loader(root, count, downscale)
 
 
-__all__ = ["FORMATS", "detect_format", "load_scene"]
+def source_image_count(path: str | Path, format: str | None = None) -> int:
+    """How many posed images the scene folder holds in all (before the split)."""
+    import json
+
+    from sparsesplat.engine.datasets.dtu import image_folder
+    from sparsesplat.engine.datasets.llff import find_image_dir
+    from sparsesplat.engine.images import list_images
+
+    root = Path(path)
+    fmt = format or detect_format(root)
+    try:
+        if fmt == "llff":
+            return len(list_images(find_image_dir(root)))
+        if fmt == "dtu":
+            return len(list_images(image_folder(root)))
+        if fmt == "blender":
+            return sum(
+                len(json.loads((root / f"transforms_{s}.json").read_text())["frames"])
+                for s in ("train", "val", "test")
+                if (root / f"transforms_{s}.json").is_file()
+            )
+        name = "cameras.json" if fmt == "folder" else "transforms.json"
+        return len(json.loads((root / name).read_text())["frames"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise SceneError(f"{root}: cannot count images ({exc})") from exc
+
+
+__all__ = ["FORMATS", "detect_format", "load_scene", "source_image_count"]

@@ -31,14 +31,18 @@ def _mask_path(root: Path, index: int, image: Path) -> Path | None:
     return None
 
 
+def image_folder(root: Path) -> Path:
+    """``images/`` (this dataset copy) or ``image/`` (canonical NeuS)."""
+    return root / "images" if (root / "images").is_dir() else root / "image"
+
+
 def load_dtu(root: Path, views: int, downscale: int = 1) -> Scene:
     """Load a DTU scan with the RegNeRF split (train 25, 22, 28; the 25 test IDs), black
     background, object masks on every view."""
     npz_path = root / "cameras_sphere.npz"
     if not npz_path.is_file():
         raise SceneError(f"{npz_path}: file not found")
-    image_dir = root / "images" if (root / "images").is_dir() else root / "image"
-    files = list_images(image_dir)
+    files = list_images(image_folder(root))
     try:
         cams_npz = dict(np.load(npz_path, allow_pickle=False))
     except (OSError, ValueError) as exc:
