@@ -291,3 +291,48 @@ def project(camera: Camera, points: Tensor) -> tuple[Tensor, Tensor]:
     u = camera.fx * cam[:, 0] / z + camera.cx
     v = camera.fy * cam[:, 1] / z + camera.cy
     return torch.stack([u, v], dim=-1), z
+
+
+# ---------------------------------------------------------------- lens distortion
+
+
+def distortion_from_transforms(meta: dict[str, Any], frame: dict[str, Any]) -> tuple[float, ...]:
+    """OpenCV (k1, k2, p1, p2) from a transforms.json frame / header (zeros when absent)."""
+    out = []
+    for key in ("k1", "k2", "p1", "p2"):
+        value = frame.get(key, meta.get(key, 0.0))
+        try:
+            out.append(float(value or 0.0))
+        except (TypeError, ValueError) as exc:
+            raise CameraError(f"distortion {key}={value!r} is not a number") from exc
+    if not np.all(np.isfinite(out)):
+        raise CameraError(f"distortion coefficients {out} contain NaN or inf")
+    return tuple(out)
+
+
+def undistort_image(
+    image: np.ndarray, fx: float, fy: float, cx: float, cy: float, coeffs: tuple[float, ...]
+) -> np.ndarray:
+    """Resample an (H, W, C) image taken through an OpenCV radial-tangential lens
+    (k1, k2, p1, p2) into the ideal pinhole image with the same intrinsics.
+
+    Each output pixel's normalised ray is pushed through the distortion model to find where
+    the lens imaged it; the input is sampled there bilinearly (outside = 0)."""
+    k1, k2, p1, p2 = coeffs
+    if not any(coeffs):
+        return image
+    import torch.nn.functional as F
+
+    h, w = image.shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    x, y = (u - cx) / fx, (v - cy) / fy
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    grid = np.stack([(xd * fx + cx) / w * 2 - 1, (yd * fy + cy) / h * 2 - 1], axis=-1)
+    src = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]
+    out = F.grid_sample(
+        src, torch.from_numpy(grid).float()[None], mode="bilinear", align_corners=False
+    )
+    return out[0].permute(1, 2, 0).numpy()

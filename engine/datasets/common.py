@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from sparsesplat.engine.camera import Camera
-from sparsesplat.engine.camera_convert import project
+from sparsesplat.engine.camera_convert import project, undistort_image
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.images import read_mask, read_rgb, resize
 from sparsesplat.engine.scene import View
@@ -26,9 +26,11 @@ def load_view(
     mask_path: Path | None = None,
     depth: np.ndarray | None = None,
     depth_source: Path | None = None,
+    distortion: tuple[float, ...] | None = None,
 ) -> View:
     """Read one image (composited on ``background``), check its size against the intrinsics,
-    optionally shrink it by the integer ``downscale`` and attach a mask / user depth."""
+    remove lens ``distortion`` (OpenCV k1, k2, p1, p2) if given, optionally shrink it by the
+    integer ``downscale`` and attach a mask / user depth."""
     image = read_rgb(image_path, background=tuple(background))  # type: ignore[arg-type]
     h, w = image.shape[:2]
     if (w, h) != (camera.width, camera.height):
@@ -36,6 +38,8 @@ def load_view(
             f"{image_path}: image is {w}x{h} but its camera intrinsics say "
             f"{camera.width}x{camera.height}"
         )
+    if distortion is not None and any(distortion):
+        image = undistort_image(image, camera.fx, camera.fy, camera.cx, camera.cy, distortion)
     mask = read_mask(mask_path) if mask_path is not None else None
     if mask is not None and mask.shape != (h, w):
         raise SceneError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, image {w}x{h}")

@@ -6,9 +6,11 @@ from pathlib import Path
 
 import torch
 
+from sparsesplat.engine.camera_convert import distortion_from_transforms
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
 from sparsesplat.engine.datasets.common import covisible_box, load_view, look_at_bounds
 from sparsesplat.engine.datasets.splits import llff_split
+from sparsesplat.engine.errors import CameraError, SceneError
 from sparsesplat.engine.scene import Scene
 
 BLACK = (0.0, 0.0, 0.0)
@@ -17,7 +19,8 @@ BLACK = (0.0, 0.0, 0.0)
 def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     """Load an instant-ngp scene with the LLFF-style split over frames sorted by file path.
 
-    Lens distortion (k1, k2, p1, p2) is ignored: images are used as pinhole images."""
+    Lens distortion (OpenCV k1, k2, p1, p2) is removed: images are resampled to the ideal
+    pinhole camera with the same intrinsics (black where the lens saw nothing)."""
     path = root / "transforms.json"
     meta = read_transforms(path)
     frames = sorted(meta["frames"], key=lambda f: str(f.get("file_path")))
@@ -26,7 +29,13 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
 
     def view(i: int):  # type: ignore[no-untyped-def]
         image_path = frame_image_path(root, frames[i], str(path))
-        return load_view(image_path.stem, image_path, cameras[i], BLACK, downscale)
+        try:
+            coeffs = distortion_from_transforms(meta, frames[i])
+        except CameraError as exc:
+            raise SceneError(f"{path}: {exc}") from exc
+        return load_view(
+            image_path.stem, image_path, cameras[i], BLACK, downscale, distortion=coeffs
+        )
 
     near, far = look_at_bounds(cameras)
     train_cams = [cameras[i] for i in train_idx]

@@ -158,3 +158,24 @@ def test_llff_nan_row_named() -> None:
     rows[1, 0] = np.inf
     with pytest.raises(CameraError, match="row 1"):
         cameras_from_llff(rows, (10, 10), "poses_bounds.npy")
+
+
+def test_undistort_moves_a_dot_back_to_its_pinhole_pixel() -> None:
+    from sparsesplat.engine.camera_convert import undistort_image
+
+    h, w, f, cx, cy = 120, 160, 100.0, 80.0, 60.0
+    coeffs = (0.08, -0.02, 0.001, -0.002)
+    # Pinhole pixel (130.5, 100.5) -> where the lens images it.
+    x, y = (130.5 - cx) / f, (100.5 - cy) / f
+    r2 = x * x + y * y
+    radial = 1 + coeffs[0] * r2 + coeffs[1] * r2 * r2
+    xd = x * radial + 2 * coeffs[2] * x * y + coeffs[3] * (r2 + 2 * x * x)
+    yd = y * radial + coeffs[2] * (r2 + 2 * y * y) + 2 * coeffs[3] * x * y
+    ud, vd = xd * f + cx, yd * f + cy
+    image = np.zeros((h, w, 3), dtype=np.float32)
+    image[int(vd) - 1 : int(vd) + 2, int(ud) - 1 : int(ud) + 2] = 1.0
+    assert abs(ud - 130.5) > 1.5, "the test dot must actually move"
+    out = undistort_image(image, f, f, cx, cy, coeffs)
+    v, u = np.unravel_index(np.argmax(out[..., 0]), out.shape[:2])
+    assert abs(u + 0.5 - 130.5) <= 1.5 and abs(v + 0.5 - 100.5) <= 1.5
+    assert undistort_image(image, f, f, cx, cy, (0.0, 0.0, 0.0, 0.0)) is image
