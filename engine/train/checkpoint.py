@@ -1,0 +1,98 @@
+"""Native checkpoints: save/load the full training state, and load a model for rendering."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.errors import EngineError
+from sparsesplat.engine.raster.types import RasterOutput
+
+CHECKPOINT_NAME = "checkpoint.pt"
+"""File name of the checkpoint inside a run's output folder."""
+
+
+class CheckpointError(EngineError, ValueError):
+    """A checkpoint file is missing, unreadable or not a sparsesplat checkpoint."""
+
+
+def save_checkpoint(state: dict[str, Any], path: str | Path) -> Path:
+    """Write ``state`` atomically (temp file + rename) so a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint written by :func:`save_checkpoint` (CheckpointError if invalid)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / CHECKPOINT_NAME
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path}: no such file")
+    try:
+        # weights_only=False: the state holds the generator state and plain dicts we wrote.
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise CheckpointError(f"checkpoint {path}: cannot be read ({exc})") from exc
+    if not isinstance(state, dict) or state.get("version") != 1 or "gaussians" not in state:
+        raise CheckpointError(f"checkpoint {path}: not a sparsesplat v1 checkpoint")
+    return state
+
+
+class TrainedModel:
+    """A trained scene ready to render (geometry features cached once at load)."""
+
+    def __init__(self, state: dict[str, Any], device: str | torch.device = "cpu") -> None:
+        """Build from a checkpoint state dict."""
+        from sparsesplat.engine.color.models import NeuralColor, make_color_model
+        from sparsesplat.engine.gaussians import Gaussians
+        from sparsesplat.engine.train.config import TrainConfig
+
+        self.device = torch.device(device)
+        self.config = TrainConfig.from_dict(state["config"])
+        self.gaussians = Gaussians({k: v.to(self.device) for k, v in state["gaussians"].items()})
+        self.color = make_color_model(state["color"])
+        self.background: Tensor = state["background"].to(self.device)
+        self.iteration = int(state["iteration"])
+        self._geo: Tensor | None = None
+        if isinstance(self.color, NeuralColor):
+            self.color.field.to(self.device)
+            self._geo = self.color.geo_features(self.gaussians)
+
+    def __len__(self) -> int:
+        """Number of Gaussians."""
+        return len(self.gaussians)
+
+    def render(self, camera: Camera, background: Tensor | None = None) -> RasterOutput:
+        """Render one view: (3, H, W) image, depth, alpha."""
+        from sparsesplat.engine.raster import rasterize
+        from sparsesplat.engine.train.trainer import _render_model
+
+        cfg = self.config
+        bg = self.background if background is None else torch.as_tensor(background).float()
+
+        def raster(*args: Any) -> RasterOutput:
+            return rasterize(
+                *args, near=cfg.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
+            )
+
+        cam = camera.to(self.device, torch.float32)
+        return _render_model(self.gaussians, self.color, cam, bg.to(self.device), raster, self._geo)
+
+    def color_fn(self):  # type: ignore[no-untyped-def]
+        """Per-Gaussian colours for arbitrary unit directions (for SH baking)."""
+        return self.color.color_fn(self.gaussians)
+
+
+def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> TrainedModel:
+    """Load a checkpoint (file or run folder) as a :class:`TrainedModel`."""
+    return TrainedModel(load_checkpoint(checkpoint), device)

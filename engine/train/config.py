@@ -1,0 +1,299 @@
+"""Training configuration: one typed, flat dataclass, and the presets as plain data.
+
+Values follow the DNGaussian reference code (dngaussian-method.md §1.5-§1.9). A preset is a
+dict of field overrides on top of the dataclass defaults (which are the LLFF values), so a
+preset, a user override and a checkpointed config all round-trip through ``asdict``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from sparsesplat.engine.errors import EngineError
+
+
+class ConfigError(EngineError, ValueError):
+    """A training configuration value is invalid (the message names the field)."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything one training run needs besides the scene and the depth priors."""
+
+    # -- run ------------------------------------------------------------------------------
+    preset: str = "default"
+    """Name of the preset this config was built from (informative)."""
+    seed: int = 0
+    """Seed of the trainer's private torch.Generator (init, view order, patches, splits)."""
+    iterations: int = 6000
+    """Number of training iterations."""
+    threads: int | None = None
+    """torch CPU threads to use; None leaves the process setting alone."""
+
+    # -- initialization -------------------------------------------------------------------
+    init_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    """Box for random init; None uses the scene's ``init_box``, else one fitted to the frusta."""
+    init_points: int | None = None
+    """Number of random points; None: ``init_points_per_unit`` x largest box side / 1.3."""
+    init_points_per_unit: float = 50.0
+    """Reference LLFF rule: 50 points per unit of the largest (pre-1.3x) axis extent."""
+    init_points_min: int = 1000
+    """Lower bound on the automatic point count (keeps tiny-unit scenes usable)."""
+    init_points_max: int = 100_000
+    """Upper bound on the automatic point count (CPU budget)."""
+    init_opacity: float = 0.1
+    """Initial opacity of every Gaussian."""
+
+    # -- colour ---------------------------------------------------------------------------
+    color_model: str = "neural"
+    """'neural' (hash grid + MLPs, DNGaussian) or 'sh' (per-Gaussian SH, 3DGS)."""
+    sh_degree: int = 3
+    """Maximum SH degree 0..3 for color_model 'sh' (ignored for 'neural')."""
+    sh_degree_interval: int = 1000
+    """Iterations between SH degree increases (3DGS schedule)."""
+    hash_log2_size: int = 19
+    """log2 of the hash table entries per level (reference 19)."""
+    hash_finest_resolution: int = 2048
+    """Finest grid resolution over the grid cube. Deviation: the reference uses 512 x bound
+    (scene-unit dependent); a fixed value keeps results independent of scene scale."""
+    background: tuple[float, float, float] | None = None
+    """Render background RGB; None uses the scene's background."""
+
+    # -- learning rates (Adam, eps 1e-15) ------------------------------------------------
+    lr_means_init: float = 0.016
+    """Initial centre LR, multiplied by the scene extent."""
+    lr_means_final: float = 0.00016
+    """Final centre LR, multiplied by the scene extent."""
+    lr_means_start: int = 500
+    """Iteration after which the centre LR starts its log-linear decay."""
+    lr_means_steps: int = 5500
+    """Length of the centre LR decay in iterations."""
+    lr_opacity: float = 0.05
+    """Opacity-logit LR."""
+    lr_scaling: float = 0.003
+    """Log-scale LR."""
+    lr_rotation: float = 0.001
+    """Quaternion LR."""
+    lr_hash_grid: float = 5e-3
+    """Hash table LR."""
+    lr_mlp: float = 5e-4
+    """LR of both MLPs."""
+    lr_sh: float = 0.0025
+    """SH DC LR (the rest uses lr_sh / 20, as 3DGS)."""
+    adam_eps: float = 1e-15
+    """Adam epsilon (reference value)."""
+
+    # -- photometric + regularizers -------------------------------------------------------
+    lambda_dssim: float = 0.2
+    """Weight of (1 - SSIM) added to L1."""
+    shape_weight: float = 0.002
+    """Weight of mean(max s / min s)."""
+    scale_weight: float = 0.001
+    """Weight of mean(max s²)."""
+    opacity_weight: float = 0.001
+    """Weight of the opacity penalty."""
+
+    # -- depth regularization -------------------------------------------------------------
+    depth_prior: str = "pydnet"
+    """Prior kind to compute ('pydnet', 'planesweep', 'user', ...) or 'none' for no depth loss."""
+    hard_depth: bool = True
+    """Hard-depth pass (opacity 0.95, gradients to centres only)."""
+    soft_depth: bool = True
+    """Soft-depth pass (real opacity, gradients to opacities only)."""
+    hard_opacity: float = 0.95
+    """Constant opacity of the hard-depth pass."""
+    hard_depth_start: int = 0
+    """Hard depth runs for iterations > this."""
+    soft_depth_start: int = 1000
+    """Soft depth runs for iterations > this."""
+    depth_every: int = 1
+    """Run the depth passes every n-th iteration (Blender: 10)."""
+    depth_until: int | None = None
+    """Stop the depth passes at this iteration (Blender: densify_until); None = never."""
+    soft_depth_ema_gate: float | None = None
+    """DTU: take a soft step only while the EMA of the hard loss is below this; None = off."""
+    patch_min: int = 5
+    """Smallest patch side for the depth normalization (inclusive)."""
+    patch_max: int = 17
+    """Largest patch side (inclusive)."""
+    error_tolerance: float = 0.00025
+    """Margin of the error-tolerant L2 (residuals below it are ignored)."""
+    depth_global_weight: float = 1.0
+    """Weight of the global-normalization term."""
+    depth_local_weight: float = 0.1
+    """Weight of the local-normalization term (paper gamma)."""
+    depth_smooth_weight: float = 0.1
+    """Weight of the prior-edge-aware depth smoothness (LLFF only in the reference)."""
+    depth_smooth_start: int = 3000
+    """Smoothness applies for iterations > this."""
+
+    # -- densification --------------------------------------------------------------------
+    densify_from: int = 500
+    """Densify for iterations > this ..."""
+    densify_until: int = 6000
+    """... and < this."""
+    densify_interval: int = 100
+    """Densify every n iterations."""
+    densify_grad_threshold: float = 0.0013
+    """Mean screen-space gradient (NDC units, as the 3DGS rasterizer reports) to densify."""
+    percent_dense: float = 0.01
+    """Clone if max scale <= this x extent, else split."""
+    split_opacity_threshold: float = 0.1
+    """Only Gaussians with opacity above this are cloned or split."""
+    prune_opacity: float = 0.01
+    """Prune Gaussians with opacity below this at each densification."""
+    opacity_reset_interval: int | None = None
+    """3DGS opacity reset period (Blender SH recipe: 3000); None = never."""
+    max_screen_size: float | None = None
+    """Prune Gaussians whose screen radius exceeds this many pixels (after the first opacity
+    reset); None = off."""
+    max_world_size: float | None = None
+    """Prune Gaussians larger than this x extent; None = off."""
+    max_gaussians: int | None = 300_000
+    """Cap on the number of Gaussians (CPU safety valve, not in the reference)."""
+    clean_iterations: tuple[int, ...] = (1,)
+    """Iterations at which Gaussians invisible from every training view are pruned."""
+
+    # -- evaluation, checkpoints, progress ------------------------------------------------
+    eval_interval_s: float = 60.0
+    """Wall-clock seconds of training between held-out evaluations (0 disables the cadence)."""
+    eval_every: int | None = None
+    """Also evaluate every n iterations (deterministic cadence, mainly for tests)."""
+    eval_max_views: int | None = None
+    """Evaluate at most this many held-out views during training (all at the end)."""
+    eval_lpips: bool = True
+    """Compute LPIPS (and AVGE) when the weights are available."""
+    checkpoint_interval_s: float = 600.0
+    """Wall-clock seconds between checkpoints (0 disables; one is always written at the end)."""
+    export: bool = True
+    """Write .ply/.splat exports at the end (when the export module is present)."""
+    profile: bool = False
+    """Time each stage (depth passes, neural field, losses, optimizer) per iteration."""
+    divergence_check_every: int = 10
+    """Check every parameter group for non-finite values every n iterations."""
+
+    # -- rasterizer -----------------------------------------------------------------------
+    raster_backend: str = "auto"
+    """Rasterizer backend name passed through to ``rasterize``."""
+    raster_near: float = 0.2
+    """Cull Gaussians with view z below this (reference rasterizer: 0.2)."""
+    eps2d: float = 0.3
+    """Screen-space dilation of the 2D covariance."""
+
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Free-form notes carried into checkpoints and metrics (never read by the trainer)."""
+
+    def validate(self) -> TrainConfig:
+        """Raise :class:`ConfigError` naming the first invalid field; return self."""
+        if self.iterations < 1:
+            raise ConfigError(f"iterations must be >= 1, got {self.iterations}")
+        if self.color_model not in ("neural", "sh"):
+            raise ConfigError(f"color_model must be 'neural' or 'sh', got {self.color_model!r}")
+        if not 0 <= self.sh_degree <= 3:
+            raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
+        if not 1 <= self.patch_min <= self.patch_max:
+            raise ConfigError(
+                f"patch range must satisfy 1 <= patch_min <= patch_max, got "
+                f"[{self.patch_min}, {self.patch_max}]"
+            )
+        if not 0.0 < self.hard_opacity < 1.0:
+            raise ConfigError(f"hard_opacity must be in (0, 1), got {self.hard_opacity}")
+        if not 0.0 < self.init_opacity < 1.0:
+            raise ConfigError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
+        if self.depth_every < 1 or self.densify_interval < 1:
+            raise ConfigError("depth_every and densify_interval must be >= 1")
+        if self.background is not None and len(self.background) != 3:
+            raise ConfigError(f"background must be 3 values, got {self.background!r}")
+        return self
+
+    @property
+    def uses_depth(self) -> bool:
+        """Whether any depth pass runs (a prior is needed)."""
+        return self.depth_prior != "none" and (self.hard_depth or self.soft_depth)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON dict of every field."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise :class:`ConfigError`."""
+        return _apply(cls(), data)
+
+
+def _apply(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
+    names = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise ConfigError(f"unknown TrainConfig field(s): {', '.join(unknown)}")
+    values = dict(overrides)
+    for key in ("clean_iterations",):
+        if key in values and values[key] is not None:
+            values[key] = tuple(values[key])
+    if values.get("init_box") is not None:
+        values["init_box"] = tuple(tuple(float(v) for v in c) for c in values["init_box"])
+    if values.get("background") is not None:
+        values["background"] = tuple(float(v) for v in values["background"])
+    return dataclasses.replace(config, **values).validate()
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # LLFF: the dataclass defaults are the LLFF recipe (3 views, 504x378, 6000 iterations).
+    "llff": {"preset": "llff", "background": (0.0, 0.0, 0.0)},
+    # DTU: 3 views at 400x300, neural colour, hard + EMA-gated soft depth, larger patches.
+    "dtu": {
+        "preset": "dtu",
+        "background": (0.0, 0.0, 0.0),
+        "init_points": 1000,
+        "lr_means_init": 0.0016,
+        "lr_means_final": 0.000016,
+        "lambda_dssim": 0.6,
+        "shape_weight": 0.005,
+        "scale_weight": 0.005,
+        "opacity_weight": 0.001,
+        "patch_min": 17,
+        "patch_max": 53,
+        "error_tolerance": 0.01,
+        "soft_depth_ema_gate": 0.1,
+        "depth_smooth_weight": 0.0,
+        "densify_grad_threshold": 0.001,
+        "percent_dense": 0.1,
+        "clean_iterations": (1, 100, 1000, 2000, 3000, 4500, 6000),
+    },
+    # Blender: 8 views at 400x400, white background, the neural recipe of drums/materials:
+    # hard depth only, every 10th iteration, until the end of densification.
+    "blender": {
+        "preset": "blender",
+        "background": (1.0, 1.0, 1.0),
+        "init_box": ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
+        "init_points": 10_000,
+        "lr_means_init": 0.00016,
+        "lr_means_final": 0.0000016,
+        "lr_means_start": 5000,
+        "lr_means_steps": 1000,
+        "lr_scaling": 0.005,
+        "shape_weight": 0.0,
+        "scale_weight": 0.0,
+        "opacity_weight": 0.0,
+        "soft_depth": False,
+        "depth_every": 10,
+        "depth_until": 6000,
+        "error_tolerance": 0.001,
+        "depth_smooth_weight": 0.0,
+        "densify_grad_threshold": 0.0005,
+        "clean_iterations": (1, 1000, 2000, 3000, 4500, 6000),
+    },
+    # User uploads: the LLFF recipe (forward-facing phone captures are the common case) with
+    # the background taken from the scene and a lighter point count.
+    "default": {"preset": "default", "init_points_max": 50_000},
+}
+"""Preset name → field overrides on top of the TrainConfig defaults."""
+
+
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    """The config of preset ``name`` with ``overrides`` applied (``ConfigError`` on bad names)."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
+    return _apply(_apply(TrainConfig(), PRESETS[name]), overrides)
