@@ -31,7 +31,10 @@ def _sweep_config(options: dict[str, Any]) -> Any:
         if key not in known:
             raise PriorError(f"plane_sweep: unknown option {key!r}; known: {', '.join(known)}")
         try:
-            kwargs[key] = int(value) if known[key] in (int, "int") else float(value)
+            if known[key] in (str, "str | None"):
+                kwargs[key] = value
+            else:
+                kwargs[key] = int(value) if known[key] in (int, "int") else float(value)
         except (TypeError, ValueError) as exc:
             raise PriorError(f"plane_sweep: option {key}={value!r} is not a number") from exc
     return SweepConfig(**kwargs)

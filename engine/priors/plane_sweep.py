@@ -38,13 +38,16 @@ class SweepConfig:
     """Softmax temperature on the cost curve for the peak-mass confidence."""
     min_texture: float = 0.01
     """Grey-level std in the window below which a pixel is untextured (confidence 0)."""
-    consistency: float = 0.02
-    """Relative depth tolerance of the cross-view check; 0 disables the check."""
+    consistency: float = 1.5
+    """Cross-view check tolerance in inverse-depth hypothesis steps (scale-free, matches the
+    sweep's own resolution); 0 disables the check."""
     smooth: int = 9
     """Side of the box filter applied to the aggregated cost volume (0 = off): a cheap
     cost-volume aggregation that suppresses isolated wrong winners in weak texture."""
     chunk: int = 8
     """Depth hypotheses evaluated per batch (memory vs speed)."""
+    device: str | None = None
+    """Torch device to sweep on (e.g. 'cuda'); None = CPU. Results always come back on CPU."""
     near: float | None = None
     """Override of the scene's near bound."""
     far: float | None = None
@@ -53,7 +56,7 @@ class SweepConfig:
 
 def _grey(image: Tensor) -> Tensor:
     """(H, W, 3) -> (1, 1, H, W) luma."""
-    w = torch.tensor([0.299, 0.587, 0.114], dtype=image.dtype)
+    w = torch.tensor([0.299, 0.587, 0.114], dtype=image.dtype, device=image.device)
     return (image @ w)[None, None]
 
 
@@ -63,11 +66,11 @@ def _box(x: Tensor, k: int) -> Tensor:
     return F.avg_pool2d(x, (1, k), stride=1, padding=(0, k // 2), count_include_pad=False)
 
 
-def _pixel_rays(cam: Camera, h: int, w: int) -> Tensor:
+def _pixel_rays(cam: Camera, h: int, w: int, device: torch.device) -> Tensor:
     """(H*W, 3) camera-space directions with z = 1 through the pixel centres."""
     v, u = torch.meshgrid(
-        torch.arange(h, dtype=torch.float32) + 0.5,
-        torch.arange(w, dtype=torch.float32) + 0.5,
+        torch.arange(h, dtype=torch.float32, device=device) + 0.5,
+        torch.arange(w, dtype=torch.float32, device=device) + 0.5,
         indexing="ij",
     )
     return torch.stack(
@@ -75,10 +78,10 @@ def _pixel_rays(cam: Camera, h: int, w: int) -> Tensor:
     ).reshape(-1, 3)
 
 
-def _relative(ref: Camera, src: Camera) -> tuple[Tensor, Tensor]:
+def _relative(ref: Camera, src: Camera, device: torch.device) -> tuple[Tensor, Tensor]:
     """Rotation and translation taking reference-camera points to source-camera points."""
-    rel = src.world_to_camera.double() @ ref.camera_to_world.double()
-    return rel[:3, :3].float(), rel[:3, 3].float()
+    rel = src.world_to_camera.cpu().double() @ ref.camera_to_world.cpu().double()
+    return rel[:3, :3].float().to(device), rel[:3, 3].float().to(device)
 
 
 def sweep_view(
@@ -94,12 +97,13 @@ def sweep_view(
     g_ref = _grey(ref_img)
     mu_r = _box(g_ref, k)
     var_r = (_box(g_ref * g_ref, k) - mu_r * mu_r).clamp_min(0)
-    rays = _pixel_rays(ref, h, w)  # (P, 3)
+    dev = ref_img.device
+    rays = _pixel_rays(ref, h, w, dev)  # (P, 3)
     n_d = inv_depths.numel()
-    costs = torch.full((len(sources), n_d, h, w), 2.0)
+    costs = torch.full((len(sources), n_d, h, w), 2.0, device=dev)
     for s, (src_img, src) in enumerate(sources):
         g_src = _grey(src_img)
-        rot, trans = _relative(ref, src)
+        rot, trans = _relative(ref, src, dev)
         dirs = rays @ rot.T  # (P, 3): source-frame direction of each reference ray
         # A point at reference depth z is dirs * z + trans; dividing by z makes each plane an
         # affine function of inverse depth: q = dirs + trans * inv (projective, same pixel).
@@ -140,12 +144,12 @@ def sweep_view(
     offset = torch.where(denom > 1e-6, 0.5 * (lo - hi) / denom, torch.zeros_like(denom))
     interior = (best > 0) & (best < n_d - 1)
     offset = torch.where(interior, offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
-    step = inv_depths[1] - inv_depths[0] if n_d > 1 else torch.tensor(0.0)
+    step = inv_depths[1] - inv_depths[0]
     inv = inv_depths[best] + offset * step
     depth = 1.0 / inv
     # Confidence: softmax mass of the cost curve within +-1 hypothesis of the winner ...
     prob = torch.softmax(-agg / cfg.temperature, dim=0)
-    idx = torch.arange(n_d).view(-1, 1, 1)
+    idx = torch.arange(n_d, device=dev).view(-1, 1, 1)
     peak = (prob * ((idx - best[None]).abs() <= 1)).sum(0)
     # ... times the match quality (ZNCC 1 -> 1, ZNCC <= 0 -> 0) ...
     quality = (1.0 - c0).clamp(0, 1)
@@ -156,17 +160,17 @@ def sweep_view(
 
 
 def _consistency(depths: list[Tensor], cams: list[Camera], tol: float) -> list[Tensor]:
-    """Per view, 1 where at least one other view's depth agrees (relative error < tol) with
-    this view's depth reprojected into it, else 0."""
+    """Per view, 1 where at least one other view's depth agrees with this view's depth
+    reprojected into it (inverse depths within ``tol``), else 0."""
     masks = []
     for i, (d_i, c_i) in enumerate(zip(depths, cams, strict=True)):
         h, w = d_i.shape
-        pts = _pixel_rays(c_i, h, w) * d_i.reshape(-1, 1)
-        ok = torch.zeros(h * w, dtype=torch.bool)
+        pts = _pixel_rays(c_i, h, w, d_i.device) * d_i.reshape(-1, 1)
+        ok = torch.zeros(h * w, dtype=torch.bool, device=d_i.device)
         for j, (d_j, c_j) in enumerate(zip(depths, cams, strict=True)):
             if j == i:
                 continue
-            rot, trans = _relative(c_i, c_j)
+            rot, trans = _relative(c_i, c_j, d_i.device)
             q = pts @ rot.T + trans
             z = q[:, 2].clamp_min(1e-6)
             u = c_j.fx * q[:, 0] / z + c_j.cx
@@ -176,7 +180,7 @@ def _consistency(depths: list[Tensor], cams: list[Camera], tol: float) -> list[T
                 d_j[None, None], grid.view(1, 1, -1, 2), mode="nearest", align_corners=False
             ).view(-1)
             inside = (grid.abs() <= 1).all(-1) & (q[:, 2] > 0)
-            ok |= inside & ((sampled - q[:, 2]).abs() < tol * q[:, 2])
+            ok |= inside & ((1.0 / sampled.clamp_min(1e-6) - 1.0 / z).abs() < tol)
         masks.append(ok.view(h, w).float())
     return masks
 
@@ -196,7 +200,12 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
         raise PriorError(
             f"scene {scene.name!r}: plane sweep needs 0 < near < far, got {near}, {far}"
         )
-    inv_depths = torch.linspace(1.0 / near, 1.0 / far, cfg.depths)
+    try:
+        dev = torch.device(cfg.device or "cpu")
+        torch.empty(0, device=dev)
+    except (RuntimeError, AssertionError) as exc:
+        raise PriorError(f"plane_sweep: device {cfg.device!r} is not usable ({exc})") from exc
+    inv_depths = torch.linspace(1.0 / near, 1.0 / far, cfg.depths, device=dev)
     images, cams = [], []
     for view in scene.train:
         img, cam = view.image.float(), view.camera
@@ -207,7 +216,7 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
             img = F.interpolate(
                 img.permute(2, 0, 1)[None], size=(cam.height, cam.width), mode="area"
             )[0].permute(1, 2, 0)
-        images.append(img)
+        images.append(img.to(dev))
         cams.append(cam)
     depths, confs = [], []
     with torch.no_grad():
@@ -217,7 +226,8 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
             depths.append(d)
             confs.append(c)
         if cfg.consistency > 0:
-            checks = _consistency(depths, cams, cfg.consistency)
+            step = float((inv_depths[0] - inv_depths[-1]).abs()) / (cfg.depths - 1)
+            checks = _consistency(depths, cams, cfg.consistency * step)
             confs = [c * m for c, m in zip(confs, checks, strict=True)]
     out = []
     for view, d, c in zip(scene.train, depths, confs, strict=True):
@@ -225,5 +235,6 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
         if d.shape != (h, w):
             d = F.interpolate(d[None, None], size=(h, w), mode="nearest")[0, 0]
             c = F.interpolate(c[None, None], size=(h, w), mode="bilinear")[0, 0]
-        out.append(PriorDepth(d.float(), c.clamp(0, 1).float(), metric=True, kind="plane_sweep"))
+        d, c = d.float().cpu(), c.clamp(0, 1).float().cpu()
+        out.append(PriorDepth(d, c, metric=True, kind="plane_sweep"))
     return out
