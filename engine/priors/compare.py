@@ -74,14 +74,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--b", default="pydnet", help="second prior setting")
     parser.add_argument("--views", type=int, default=None, help="training views")
     parser.add_argument("--threshold", type=float, default=0.5, help="confidence threshold")
+    parser.add_argument("--cache-dir", default=None, help="prior cache folder")
     args = parser.parse_args(argv)
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.priors import compute_priors
 
     scene = load_scene(args.scene, views=args.views)
-    result = scene_agreement(
-        compute_priors(scene, args.a), compute_priors(scene, args.b), args.threshold
-    )
+    a = compute_priors(scene, args.a, cache_dir=args.cache_dir)
+    b = compute_priors(scene, args.b, cache_dir=args.cache_dir)
+    result = scene_agreement(a, b, args.threshold)
     print(json.dumps({"scene": scene.name, "a": args.a, "b": args.b, **result}, indent=1))
     return 0
 
