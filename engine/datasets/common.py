@@ -138,4 +138,4 @@ def covisible_box(
         pts = torch.cat(allpts)
     lo = torch.quantile(pts, 0.02, dim=0).tolist()
     hi = torch.quantile(pts, 0.98, dim=0).tolist()
-    return (tuple(lo), tuple(hi))  # type: ignore[return-value]
+    return ((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))

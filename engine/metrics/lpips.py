@@ -75,6 +75,8 @@ class LPIPS(nn.Module):
         for i, c in enumerate(_CHANNELS):
             if self.heads[i].shape != (1, c, 1, 1):
                 raise MetricError(f"{LIN_FILE}: head {i} has shape {tuple(self.heads[i].shape)}")
+        self.shift: Tensor
+        self.scale: Tensor
         self.register_buffer("shift", torch.tensor(SHIFT).view(1, 3, 1, 1))
         self.register_buffer("scale", torch.tensor(SCALE).view(1, 3, 1, 1))
         self.requires_grad_(False)

@@ -76,7 +76,8 @@ def describe(name: str, overrides: dict[str, str] | None = None) -> OnnxModel:
                 triple = tuple(float(x) for x in value.split("/"))
                 if len(triple) != 3:
                     raise ValueError("needs three values a/b/c")
-                model = replace(model, **{key: triple})
+                rgb = (triple[0], triple[1], triple[2])
+                model = replace(model, mean=rgb) if key == "mean" else replace(model, std=rgb)
             elif key == "layout" and value.upper() in ("NCHW", "NHWC"):
                 model = replace(model, layout=value.upper())
             elif key == "output" and value in ("depth", "inverse_depth"):
