@@ -85,3 +85,26 @@ def load_dtu(root: Path, views: int, downscale: int = 1) -> Scene:
         train_indices=train_idx,
         test_indices=test_idx,
     )
+
+
+DTU_DARK_THRESHOLD = 30.0 / 255.0
+"""Max-RGB below which a DTU training pixel may be background (the reference uses 15/255
+for scan110)."""
+DTU_DARK_RUN = 49
+"""A dark pixel is background only if this many pixels directly above it are dark too."""
+
+
+def dtu_background_mask(
+    image: torch.Tensor, threshold: float = DTU_DARK_THRESHOLD, run: int = DTU_DARK_RUN
+) -> torch.Tensor:
+    """The reference's DTU training background mask for an (H, W, 3) image: pixels whose max
+    channel is below ``threshold`` and whose ``run`` upper neighbours in the same column are
+    also dark (rows nearer the top than ``run`` need only the rows that exist). The black
+    backdrop of DTU passes; dark texture on the object (short dark runs) does not."""
+    dark = image.max(dim=-1).values < threshold
+    mask = dark.clone()
+    for shift in range(1, run + 1):
+        if shift >= dark.shape[0]:
+            break
+        mask[shift:] &= dark[:-shift]
+    return mask

@@ -45,3 +45,17 @@ def test_dtu_and_blender_splits() -> None:
     train, test = blender_split(100, 200, 8)
     assert train == [26, 86, 2, 55, 75, 93, 16, 73]
     assert test == list(range(0, 200, 8)) and len(test) == 25
+
+
+def test_dtu_background_mask_needs_a_dark_run_above() -> None:
+    import torch
+
+    from sparsesplat.engine.datasets.dtu import dtu_background_mask
+
+    image = torch.full((120, 10, 3), 0.8)
+    image[:100, :5] = 0.02  # a tall dark backdrop on the left
+    image[105:115, 5:] = 0.02  # a short dark patch (object texture) on the right
+    mask = dtu_background_mask(image)
+    assert mask[:100, :5].all()
+    assert not mask[100:, :5].any()
+    assert not mask[105:115, 5:].any(), "short dark runs are not background"
