@@ -50,7 +50,10 @@ def knn_log_scales(means: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
         nearest = torch.topk(d2, kk, dim=1, largest=False).values
         nearest = torch.where(torch.isfinite(nearest), nearest, torch.zeros_like(nearest))
         out[start : start + block.shape[0]] = nearest.mean(dim=1)
-    dist2 = out.clamp_min(1e-7)
+    # simple-knn clamps at 1e-7 scene units²; relative to the point cloud's size instead, so a
+    # rescaled scene gets exactly rescaled Gaussians.
+    diag2 = float((means.max(dim=0).values - means.min(dim=0).values).square().sum())
+    dist2 = out.clamp_min(1e-7 * max(diag2, 1e-30))
     return torch.log(torch.sqrt(dist2)).unsqueeze(1).repeat(1, 3)
 
 

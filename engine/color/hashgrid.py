@@ -19,6 +19,24 @@ _PRIMES = (1, 2654435761, 805459861)
 _CORNERS = torch.tensor([[(c >> d) & 1 for d in range(3)] for c in range(8)], dtype=torch.long)
 
 
+class _Gather(torch.autograd.Function):
+    """rows = table[index] with a backward that is one ``index_add_`` into a dense gradient
+    (autograd's advanced-indexing backward is several times slower on CPU)."""
+
+    @staticmethod
+    def forward(ctx, table: Tensor, index: Tensor) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(index)
+        ctx.rows = table.shape[0]
+        return table.index_select(0, index)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, None]:  # type: ignore[override]
+        (index,) = ctx.saved_tensors
+        out = grad.new_zeros(ctx.rows, grad.shape[1])
+        out.index_add_(0, index, grad)
+        return out, None
+
+
 class HashGrid(nn.Module):
     """3D multiresolution hash encoding: (N, 3) in [0, 1] → (N, n_levels * n_features)."""
 
@@ -63,33 +81,45 @@ class HashGrid(nn.Module):
         table = torch.rand(offsets[-1], n_features, generator=generator)
         self.embeddings = nn.Parameter(table * 2 * init_range - init_range)
 
-    def _indices(self, grid: Tensor, level: int) -> Tensor:
-        """(..., 3) integer vertex coordinates → (...) rows of the level's table."""
-        size = self.sizes[level]
-        if self.dense[level]:
-            stride = self.resolutions[level] + 1
-            index = grid[..., 0] + grid[..., 1] * stride + grid[..., 2] * stride * stride
-        else:
-            index = grid[..., 0] * _PRIMES[0]
-            index = index ^ (grid[..., 1] * _PRIMES[1])
-            index = index ^ (grid[..., 2] * _PRIMES[2])
-            index = index & 0xFFFFFFFF
-        return index % size + self.offsets[level]
+    def _level_tables(self, device: torch.device) -> dict[str, Tensor]:
+        """Per-level constants as tensors (scale, size, offset, dense flag, dense stride)."""
+        cache = getattr(self, "_consts", None)
+        if cache is None or cache["scale"].device != device:
+            cache = {
+                "scale": torch.tensor(self.scales, dtype=torch.float32, device=device),
+                "size": torch.tensor(self.sizes, dtype=torch.long, device=device),
+                "offset": torch.tensor(self.offsets[:-1], dtype=torch.long, device=device),
+                "dense": torch.tensor(self.dense, dtype=torch.bool, device=device),
+                "stride": torch.tensor(
+                    [r + 1 for r in self.resolutions], dtype=torch.long, device=device
+                ),
+            }
+            self._consts = cache
+        return cache
 
     def forward(self, x: Tensor) -> Tensor:
-        """Encode (N, 3) points in [0, 1]; points outside get zeros (and no gradient)."""
+        """Encode (N, 3) points in [0, 1]; points outside get zeros (and no gradient).
+
+        All levels are gathered in one indexing op so the backward builds ONE dense gradient
+        of the table (per-level gathers would each allocate a table-sized zero tensor)."""
         inside = ((x >= 0) & (x <= 1)).all(dim=-1, keepdim=True)
         x = torch.where(inside, x, torch.zeros_like(x))
-        corners = _CORNERS.to(x.device)
-        feats = []
-        for level in range(self.n_levels):
-            pos = x * self.scales[level] + 0.5
-            base = torch.floor(pos)
-            frac = pos - base
-            grid = base.long().unsqueeze(1) + corners  # (N, 8, 3)
-            # Trilinear weights: prod over axes of frac or (1 - frac).
-            w = torch.where(corners.bool(), frac.unsqueeze(1), 1.0 - frac.unsqueeze(1)).prod(-1)
-            rows = self.embeddings[self._indices(grid, level)]  # (N, 8, F)
-            feats.append((w.unsqueeze(-1) * rows).sum(dim=1))
-        out = torch.cat(feats, dim=-1)
+        c = self._level_tables(x.device)
+        corners = _CORNERS.to(x.device)  # (8, 3)
+        pos = x[:, None, :] * c["scale"][None, :, None] + 0.5  # (N, L, 3)
+        base = torch.floor(pos)
+        frac = pos - base
+        grid = base.long()[:, :, None, :] + corners  # (N, L, 8, 3)
+        # Trilinear weights: product over axes of frac (corner bit 1) or 1 - frac (bit 0).
+        f = frac[:, :, None, :]
+        w = torch.where(corners.bool(), f, 1.0 - f).prod(-1)  # (N, L, 8)
+        stride = c["stride"][None, :, None]
+        dense_idx = grid[..., 0] + grid[..., 1] * stride + grid[..., 2] * stride * stride
+        hashed = (
+            (grid[..., 0] * _PRIMES[0]) ^ (grid[..., 1] * _PRIMES[1]) ^ (grid[..., 2] * _PRIMES[2])
+        ) & 0xFFFFFFFF
+        index = torch.where(c["dense"][None, :, None], dense_idx, hashed)
+        index = index % c["size"][None, :, None] + c["offset"][None, :, None]
+        rows = _Gather.apply(self.embeddings, index.reshape(-1)).reshape(*index.shape, -1)
+        out = (w.unsqueeze(-1) * rows).sum(dim=2).reshape(x.shape[0], -1)
         return out * inside.to(out.dtype)

@@ -63,6 +63,7 @@ class TrainedModel:
         self.color = make_color_model(state["color"])
         self.background: Tensor = state["background"].to(self.device)
         self.iteration = int(state["iteration"])
+        self.raster_near = float(state.get("raster_near", 0.01))
         self._geo: Tensor | None = None
         if isinstance(self.color, NeuralColor):
             self.color.field.to(self.device)
@@ -82,7 +83,7 @@ class TrainedModel:
 
         def raster(*args: Any) -> RasterOutput:
             return rasterize(
-                *args, near=cfg.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
+                *args, near=self.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
             )
 
         cam = camera.to(self.device, torch.float32)

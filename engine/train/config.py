@@ -91,7 +91,8 @@ class TrainConfig:
     shape_weight: float = 0.002
     """Weight of mean(max s / min s)."""
     scale_weight: float = 0.001
-    """Weight of mean(max s²)."""
+    """Weight of mean(max s²), with s measured in units of the scene extent (deviation: the
+    reference uses raw scene units, which makes the penalty depend on the scene's scale)."""
     opacity_weight: float = 0.001
     """Weight of the opacity penalty."""
 
@@ -125,7 +126,8 @@ class TrainConfig:
     depth_local_weight: float = 0.1
     """Weight of the local-normalization term (paper gamma)."""
     depth_smooth_weight: float = 0.1
-    """Weight of the prior-edge-aware depth smoothness (LLFF only in the reference)."""
+    """Weight of the prior-edge-aware depth smoothness (LLFF only in the reference); the
+    rendered depth enters in units of the scene extent (scale-free, a deviation)."""
     depth_smooth_start: int = 3000
     """Smoothness applies for iterations > this."""
 
@@ -173,12 +175,24 @@ class TrainConfig:
     """Time each stage (depth passes, neural field, losses, optimizer) per iteration."""
     divergence_check_every: int = 10
     """Check every parameter group for non-finite values every n iterations."""
+    divergence_step_limits: dict[str, float] = field(
+        default_factory=lambda: {
+            "means": 0.25,
+            "log_scales": 0.15,
+            "quats": 0.1,
+            "opacity_logits": 1.0,
+        }
+    )
+    """Per-group limit on the running mean |update| of one photometric Adam step (means in
+    units of the scene extent). Sane runs move ~10x less; a blow-up (e.g. learning rates 100x
+    too high) moves more and is stopped with TrainingDiverged naming the group."""
 
     # -- rasterizer -----------------------------------------------------------------------
     raster_backend: str = "auto"
     """Rasterizer backend name passed through to ``rasterize``."""
-    raster_near: float = 0.2
-    """Cull Gaussians with view z below this (reference rasterizer: 0.2)."""
+    raster_near: float | None = None
+    """Cull Gaussians with view z below this. The reference rasterizer uses a fixed 0.2 scene
+    units; None uses 0.2 x the scene's near bound instead, so the rule follows scene scale."""
     eps2d: float = 0.3
     """Screen-space dilation of the 2D covariance."""
 

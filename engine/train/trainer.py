@@ -125,6 +125,7 @@ class Trainer:
         self.records: list[dict[str, Any]] = []
         self.view_stack: list[int] = []
         self.hard_ema: float | None = None
+        self._step_ema: dict[str, float] = {}
         self.timings: dict[str, float] = {}
         """Accumulated seconds per stage when ``config.profile`` is on."""
         self._loss_sum = 0.0
@@ -176,6 +177,9 @@ class Trainer:
         if radius <= 0:  # a single view (or coincident cameras): fall back to the box size
             radius = float((hi - lo).max()) * 0.5
         self.extent = radius
+        near = cfg.raster_near if cfg.raster_near is not None else 0.2 * self.scene.near
+        self.raster_near = near if near > 0 else 0.01
+        """View-z culling distance used by every render of this run."""
         """Scene extent (1.1 x max train-camera distance from their mean), scales LRs."""
 
     def _setup_model(self) -> None:
@@ -221,8 +225,9 @@ class Trainer:
             for name, p in self.gaussians.params.items()
         ]
         groups += self.color.param_groups({"hash_grid": cfg.lr_hash_grid, "mlp": cfg.lr_mlp})
-        # foreach=False keeps the update order identical across runs (resume determinism).
-        return torch.optim.Adam(groups, lr=0.0, eps=cfg.adam_eps, foreach=False)
+        # fused: one kernel per tensor, several times faster than the default on CPU (the hash
+        # table is millions of entries) and deterministic, so resumed runs stay bit-identical.
+        return torch.optim.Adam(groups, lr=0.0, eps=cfg.adam_eps, fused=True)
 
     # -- rendering ---------------------------------------------------------------------------
     def _raster(
@@ -244,7 +249,7 @@ class Trainer:
             feats,
             cam,
             bg,
-            near=cfg.raster_near,
+            near=self.raster_near,
             eps2d=cfg.eps2d,
             backend=cfg.raster_backend,
         )
@@ -324,6 +329,7 @@ class Trainer:
             "iteration": self.iteration,
             "elapsed_s": self.elapsed_s,
             "extent": self.extent,
+            "raster_near": self.raster_near,
             "background": self.background.cpu(),
             "gaussians": {k: v.detach().cpu() for k, v in g.params.items()},
             "grad_accum": g.grad_accum.cpu(),
@@ -334,6 +340,7 @@ class Trainer:
             "generator": self.generator.get_state(),
             "view_stack": list(self.view_stack),
             "hard_ema": self.hard_ema,
+            "step_ema": dict(self._step_ema),
             "records": list(self.records),
         }
 
@@ -355,6 +362,7 @@ class Trainer:
         self.generator.set_state(state["generator"])
         self.view_stack = list(state["view_stack"])
         self.hard_ema = state["hard_ema"]
+        self._step_ema = dict(state.get("step_ema", {}))
         self.records = list(state["records"])
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path:
@@ -401,10 +409,10 @@ class Trainer:
         lo, hi = self.box
         scene_size = max(lim, float((hi - lo).max()))
         checks = {
-            "log_scales": float(g.log_scales.max()) > math.log(1e3 * scene_size)
+            "log_scales": float(g.log_scales.detach().max()) > math.log(1e3 * scene_size)
             if len(g)
             else False,
-            "means": float(g.means.abs().max()) > 1e4 * scene_size + float(hi.abs().max())
+            "means": float(g.means.detach().abs().max()) > 1e4 * scene_size + float(hi.abs().max())
             if len(g)
             else False,
         }
@@ -414,6 +422,28 @@ class Trainer:
                 raise TrainingDiverged(
                     f"training diverged at step {self.iteration}: parameter group {name!r} "
                     f"blew up (values beyond 1e3-1e4 x the scene size; lr={lr:.3g})"
+                )
+
+    def _check_step_sizes(self, before: dict[str, Tensor]) -> None:
+        """Track the running mean |update| per watched group; raise when one blows up."""
+        g, limits = self.gaussians, self.config.divergence_step_limits
+        for name, old in before.items():
+            new = g.params[name].detach()
+            if new.shape != old.shape or new.numel() == 0:
+                continue  # densified this step: rows changed, nothing comparable
+            d = float((new - old).abs().mean())
+            if name == "means":
+                d /= self.extent
+            ema = self._step_ema.get(name)
+            ema = d if ema is None else 0.8 * ema + 0.2 * d
+            self._step_ema[name] = ema
+            if self.iteration >= 10 and ema > limits[name]:
+                lr = next(gr["lr"] for gr in self.optimizer.param_groups if gr["name"] == name)
+                unit = " x scene extent" if name == "means" else ""
+                raise TrainingDiverged(
+                    f"training diverged at step {self.iteration}: parameter group {name!r} "
+                    f"moves {ema:.3g}{unit} per step on average (limit {limits[name]}); its "
+                    f"learning rate ({lr:.3g}) is too high"
                 )
 
     def _next_view(self) -> int:
@@ -435,7 +465,8 @@ class Trainer:
             cfg.depth_local_weight,
         )
         if cfg.depth_smooth_weight > 0 and self.iteration > cfg.depth_smooth_start:
-            loss = loss + cfg.depth_smooth_weight * edge_aware_smoothness(d, self.smooth_guides[i])
+            smooth = edge_aware_smoothness(d / self.extent, self.smooth_guides[i])
+            loss = loss + cfg.depth_smooth_weight * smooth
         return loss
 
     def _clean_views(self) -> None:
@@ -534,7 +565,7 @@ class Trainer:
         if cfg.shape_weight:
             loss = loss + cfg.shape_weight * shape_regularizer(scales)
         if cfg.scale_weight:
-            loss = loss + cfg.scale_weight * scale_regularizer(scales)
+            loss = loss + cfg.scale_weight * scale_regularizer(scales / self.extent)
         if cfg.opacity_weight:
             loss = loss + cfg.opacity_weight * opacity_regularizer(g.opacity)
         self._check_finite(loss.detach(), "the photometric loss")
@@ -588,8 +619,12 @@ class Trainer:
             g.reset_opacity(self.optimizer)
         if it % cfg.divergence_check_every == 0:
             self._check_groups(grads=True)
+        watched = {
+            k: v.detach().clone() for k, v in g.params.items() if k in cfg.divergence_step_limits
+        }
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        self._check_step_sizes(watched)
         if it % cfg.divergence_check_every == 0 or it == cfg.iterations:
             self._check_groups(grads=False)
         self._tick("optimizer", t)

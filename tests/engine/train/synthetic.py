@@ -65,7 +65,7 @@ def make_scene(
     views, depths = {}, {}
     for i, cam in enumerate(cams):
         with torch.no_grad():
-            out = rasterize(means, log_scales, quats, opac, colors, cam, bg)
+            out = rasterize(means, log_scales, quats, opac, colors, cam, bg, near=0.01 * scale)
         img = out.image.permute(1, 2, 0).clamp(0, 1).contiguous()
         if image_fill is not None:
             img = torch.full_like(img, image_fill)
