@@ -41,6 +41,9 @@ class SweepConfig:
     consistency: float = 1.5
     """Cross-view check tolerance in inverse-depth hypothesis steps (scale-free, matches the
     sweep's own resolution); 0 disables the check."""
+    max_sources: int = 4
+    """Each reference view is matched against at most this many other training views, the
+    ones whose optical axes are closest in angle (keeps 8+ views tractable)."""
     smooth: int = 9
     """Side of the box filter applied to the aggregated cost volume (0 = off): a cheap
     cost-volume aggregation that suppresses isolated wrong winners in weak texture."""
@@ -201,6 +204,15 @@ def _consistency(depths: list[Tensor], cams: list[Camera], tol: float) -> list[T
     return masks
 
 
+def _nearest_views(cams: list[Camera], ref: int, count: int) -> list[int]:
+    """Indices of the ``count`` other cameras whose viewing directions are closest to
+    camera ``ref``'s (smallest angle first)."""
+    axes = [c.world_to_camera[2, :3].double() for c in cams]
+    others = [j for j in range(len(cams)) if j != ref]
+    others.sort(key=lambda j: -float(axes[ref] @ axes[j]))
+    return others[: max(1, count)]
+
+
 def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[PriorDepth]:
     """Metric depth priors for every training view of ``scene`` by plane-sweep stereo."""
     cfg = cfg or SweepConfig()
@@ -208,6 +220,8 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
         raise PriorError(f"scene {scene.name!r}: plane sweep needs at least 2 training views")
     if cfg.window < 3 or cfg.window % 2 == 0:
         raise PriorError(f"plane_sweep: window must be odd and >= 3, got {cfg.window}")
+    if cfg.max_sources < 1:
+        raise PriorError(f"plane_sweep: max_sources must be >= 1, got {cfg.max_sources}")
     if cfg.depths < 3:
         raise PriorError(f"plane_sweep: depths must be >= 3, got {cfg.depths}")
     near = cfg.near if cfg.near is not None else scene.near
@@ -237,7 +251,7 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
     depths, confs = [], []
     with torch.no_grad():
         for i in range(len(images)):
-            sources = [(images[j], cams[j]) for j in range(len(images)) if j != i]
+            sources = [(images[j], cams[j]) for j in _nearest_views(cams, i, cfg.max_sources)]
             d, c = sweep_view(images[i], cams[i], sources, inv_depths, cfg)
             depths.append(d)
             confs.append(c)
