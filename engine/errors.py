@@ -25,3 +25,7 @@ class RasterError(EngineError, RuntimeError):
 
 class TrainingDiverged(EngineError, FloatingPointError):
     """Training produced non-finite values; the message names the step and the parameter group."""
+
+
+class ExportError(EngineError, ValueError):
+    """Gaussians cannot be exported or a file cannot be read back: bad shapes, bad headers."""

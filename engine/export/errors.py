@@ -1,9 +1,7 @@
-"""The export error type (kept here until the lead folds it into ``engine/errors.py``)."""
+"""The export error type; defined with the other engine errors and re-exported here."""
 
 from __future__ import annotations
 
-from sparsesplat.engine.errors import EngineError
+from sparsesplat.engine.errors import ExportError
 
-
-class ExportError(EngineError, ValueError):
-    """Gaussians cannot be exported or a file cannot be read back: bad shapes, bad headers."""
+__all__ = ["ExportError"]
