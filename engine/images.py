@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image, ImageOps, UnidentifiedImageError
 
 from sparsesplat.engine.errors import SceneError
 
@@ -20,7 +20,8 @@ def _open(path: Path) -> Image.Image:
     try:
         with Image.open(path) as img:
             img.load()  # decode now: a truncated file fails here, not later
-            return img.copy()
+            # Phone photos store their rotation in EXIF; use the orientation people see.
+            return ImageOps.exif_transpose(img) if _exif_rotation(img) else img.copy()
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise SceneError(f"{path}: cannot read image ({exc})") from exc
 
@@ -77,14 +78,26 @@ def read_depth(path: str | Path) -> np.ndarray:
     return np.asarray(img, dtype=np.float32)
 
 
+def _exif_rotation(img: Image.Image) -> bool:
+    """Whether the EXIF orientation tag asks for anything but the identity."""
+    try:
+        return img.getexif().get(0x0112, 1) not in (1, None)
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
-    """(width, height) of an image file without decoding the pixels."""
+    """(width, height) of an image file as displayed (EXIF rotation applied), without
+    decoding the pixels."""
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"{path}: image file not found")
     try:
         with Image.open(path) as img:
-            return img.size
+            w, h = img.size
+            if _exif_rotation(img) and img.getexif().get(0x0112) in (5, 6, 7, 8):
+                return h, w  # 90-degree rotations swap the sides
+            return w, h
     except (UnidentifiedImageError, OSError) as exc:
         raise SceneError(f"{path}: cannot read image ({exc})") from exc
 

@@ -61,7 +61,8 @@ def _frame_camera(root: Path, frame: dict[str, Any], converter: Any, source: str
 def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Scene:
     """Load an upload folder. Frames marked ``split: test`` are held out; of the training
     frames, ``views`` (default all) are taken evenly in file order. User depth maps are
-    attached to their views as ``View.depth``."""
+    attached to their views as ``View.depth`` (divided by the optional ``depth_scale``, per
+    frame or top level, e.g. 1000 for millimetre PNGs; 0 = no depth)."""
     path = root / CAMERAS_FILE
     if not path.is_file():
         raise SceneError(f"{path}: file not found")
@@ -99,6 +100,15 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             depth = read_depth(depth_path)
             if not np.all(np.isfinite(depth)):
                 raise SceneError(f"{depth_path}: depth contains NaN or inf")
+            # Integer PNG depth (e.g. millimetres) -> scene units: divide by depth_scale.
+            scale = frame.get("depth_scale", meta.get("depth_scale", 1.0))
+            try:
+                scale = float(scale)
+            except (TypeError, ValueError) as exc:
+                raise SceneError(f"{path}: depth_scale {scale!r} is not a number") from exc
+            if not np.isfinite(scale) or scale <= 0:
+                raise SceneError(f"{path}: depth_scale must be positive, got {scale}")
+            depth = depth / scale
         image = root / str(frame["image"])
         return load_view(
             image.stem, image, cameras[i], BLACK, downscale, depth=depth, depth_source=depth_path

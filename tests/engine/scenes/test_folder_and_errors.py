@@ -122,3 +122,36 @@ def test_llff_errors(tmp_path: Path) -> None:
     np.save(root / "poses_bounds.npy", rows)
     scene = load_scene(root, views=2)
     assert scene.train_indices == [1, 9] and scene.test_indices == [0, 8]
+
+
+def test_png_depth_with_scale(tmp_path: Path) -> None:
+    from PIL import Image
+
+    root = write_folder_scene(tmp_path / "s")
+    depth_mm = np.full((32, 48), 2500, dtype=np.uint16)
+    Image.fromarray(depth_mm).save(root / "d0.png")
+
+    def add(meta: dict) -> None:
+        meta["depth_scale"] = 1000.0
+        meta["frames"][0]["depth"] = "d0.png"
+
+    _edit(root, add)
+    scene = load_scene(root)
+    assert scene.train[0].depth is not None
+    assert torch.allclose(scene.train[0].depth, torch.full((32, 48), 2.5))
+
+
+def test_exif_rotation_is_applied(tmp_path: Path) -> None:
+    from PIL import Image
+
+    from sparsesplat.engine.images import image_size, read_rgb
+
+    img = Image.new("RGB", (40, 20), (255, 0, 0))
+    img.paste((0, 0, 255), (0, 0, 10, 20))  # blue strip on the left
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "rotate 90 CW to display"
+    img.save(tmp_path / "r.jpg", exif=exif, quality=100)
+    assert image_size(tmp_path / "r.jpg") == (20, 40)
+    arr = read_rgb(tmp_path / "r.jpg")
+    assert arr.shape == (40, 20, 3)
+    assert arr[2, 10, 2] > 0.8 and arr[-2, 10, 0] > 0.8, "left strip must end up on top"
