@@ -18,13 +18,19 @@ TILE_HEIGHT = 240
 
 def colorize_depth(depth: np.ndarray, confidence: np.ndarray) -> np.ndarray:
     """Depth -> RGB with a perceptual colormap (near = red, far = blue), normalised by the
-    2nd/98th percentiles of the confident pixels; unconfident pixels are shown grey."""
+    2nd/98th percentiles of the confident pixels; unconfident pixels are washed out grey.
+    Positive (metric) depths are shown as inverse depth, which spreads near and far evenly
+    over wide ranges (LLFF bounds span 1-120 units)."""
     from matplotlib import colormaps
 
     valid = confidence > 0.5
     sample = depth[valid] if valid.sum() > 20 else depth.reshape(-1)
+    if sample.size and float(sample.min()) > 0:
+        value, sample = -1.0 / np.maximum(depth, 1e-12), -1.0 / sample
+    else:
+        value = depth
     lo, hi = np.percentile(sample, [2, 98]) if sample.size else (0.0, 1.0)
-    t = np.clip((depth - lo) / max(hi - lo, 1e-12), 0, 1)
+    t = np.clip((value - lo) / max(hi - lo, 1e-12), 0, 1)
     rgb = colormaps["turbo"](1.0 - t)[..., :3]
     grey = np.full_like(rgb, 0.35)
     return np.where(valid[..., None], rgb, 0.5 * rgb + 0.5 * grey)
@@ -33,7 +39,9 @@ def colorize_depth(depth: np.ndarray, confidence: np.ndarray) -> np.ndarray:
 def _tile(array: np.ndarray) -> Image.Image:
     img = Image.fromarray(to_uint8(array))
     w = max(1, round(img.width * TILE_HEIGHT / img.height))
-    return img.resize((w, TILE_HEIGHT), Image.Resampling.BILINEAR)
+    img = img.resize((w, TILE_HEIGHT), Image.Resampling.BILINEAR)
+    ImageDraw.Draw(img).rectangle((0, 0, w - 1, TILE_HEIGHT - 1), outline=(128, 128, 128))
+    return img
 
 
 def contact_sheet(
@@ -59,7 +67,10 @@ def contact_sheet(
     width = max(r.width for r in rows)
     sheet = Image.new("RGB", (width, header + sum(r.height + 4 for r in rows)), (255, 255, 255))
     kind = priors[0].kind if priors else "none"
-    text = title or f"{scene.name} ({scene.format}) - prior: {kind} - image | depth | confidence"
+    text = title or (
+        f"{scene.name} ({scene.format}) - prior: {kind} - image | depth (red near, blue far; "
+        "grey = not confident) | confidence (white = 1)"
+    )
     ImageDraw.Draw(sheet).text((6, 6), text, fill=(0, 0, 0))
     y = header
     for row in rows:
