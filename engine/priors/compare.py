@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.priors.base import PriorDepth
+from sparsesplat.engine.scene import View
 
 MIN_PIXELS = 50
 """Fewer confident pixels than this gives NaN (no meaningful correlation)."""
@@ -66,6 +67,50 @@ def scene_agreement(
     }
 
 
+def warp_error(
+    ref: View, other: View, prior: PriorDepth, threshold: float = 0.5
+) -> dict[str, float]:
+    """Held-out check of a metric prior: warp ``other`` (a view not used for the prior) into
+    ``ref`` through the prior's depth and report the mean absolute colour error on confident
+    pixels that land inside ``other``, next to the same error for a constant depth (the
+    median), which is what a prior with no geometric information would get."""
+    import torch.nn.functional as F
+
+    def err(depth: Tensor) -> tuple[float, Tensor]:
+        cam, oc = ref.camera, other.camera
+        h, w = depth.shape
+        v, u = torch.meshgrid(
+            torch.arange(h, dtype=torch.float64) + 0.5,
+            torch.arange(w, dtype=torch.float64) + 0.5,
+            indexing="ij",
+        )
+        z = depth.double()
+        pts = torch.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], -1)
+        rel = oc.world_to_camera.double() @ cam.camera_to_world.double()
+        q = pts.reshape(-1, 3) @ rel[:3, :3].T + rel[:3, 3]
+        qz = q[:, 2].clamp_min(1e-9)
+        gx = (oc.fx * q[:, 0] / qz + oc.cx) / oc.width * 2 - 1
+        gy = (oc.fy * q[:, 1] / qz + oc.cy) / oc.height * 2 - 1
+        grid = torch.stack([gx, gy], -1).float().view(1, h, w, 2)
+        img = other.image.permute(2, 0, 1)[None].float()
+        warped = F.grid_sample(img, grid, align_corners=False)[0].permute(1, 2, 0)
+        used = (
+            (prior.confidence > threshold) & (grid[0].abs() <= 1).all(-1) & (q[:, 2] > 0).view(h, w)
+        )
+        diff = (warped - ref.image.float()).abs().mean(-1)
+        return (float(diff[used].mean()) if bool(used.any()) else float("nan")), used
+
+    value, used = err(prior.depth)
+    confident = prior.depth[prior.confidence > threshold]
+    median = float(confident.median()) if confident.numel() else float(prior.depth.median())
+    baseline, _ = err(torch.full_like(prior.depth, median))
+    return {
+        "error": value,
+        "constant_depth_error": baseline,
+        "fraction": float(used.float().mean()),
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI: print the agreement of two priors on one scene as JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -75,6 +120,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--views", type=int, default=None, help="training views")
     parser.add_argument("--threshold", type=float, default=0.5, help="confidence threshold")
     parser.add_argument("--cache-dir", default=None, help="prior cache folder")
+    parser.add_argument(
+        "--heldout",
+        default=None,
+        metavar="TEST:TRAIN",
+        help="also warp test view TEST (source index) into training view number TRAIN "
+        "(0-based position) through prior --a and report the colour error",
+    )
     args = parser.parse_args(argv)
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.priors import compute_priors
@@ -82,7 +134,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     scene = load_scene(args.scene, views=args.views)
     a = compute_priors(scene, args.a, cache_dir=args.cache_dir)
     b = compute_priors(scene, args.b, cache_dir=args.cache_dir)
-    result = scene_agreement(a, b, args.threshold)
+    result: dict[str, object] = scene_agreement(a, b, args.threshold)
+    if args.heldout:
+        test_id, train_pos = (int(x) for x in args.heldout.split(":"))
+        other = scene.test[scene.test_indices.index(test_id)]
+        result["heldout"] = warp_error(scene.train[train_pos], other, a[train_pos], args.threshold)
     print(json.dumps({"scene": scene.name, "a": args.a, "b": args.b, **result}, indent=1))
     return 0
 

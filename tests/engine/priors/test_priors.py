@@ -165,3 +165,15 @@ def test_contact_sheet(tmp_path: Path) -> None:
 
     with Image.open(path) as img:
         assert img.height > 3 * 240 and img.width > 3 * 240
+
+
+def test_warp_error_prefers_true_depth() -> None:
+    from sparsesplat.engine.priors.compare import warp_error
+
+    scene, truth = plane_scene(2, views=3, size=(64, 48))
+    ref, other = scene.train[0], scene.train[1]
+    true_prior = PriorDepth(torch.from_numpy(truth[0]).float(), torch.ones(48, 64), True)
+    result = warp_error(ref, other, true_prior)
+    assert result["fraction"] > 0.3
+    assert result["error"] < 0.5 * result["constant_depth_error"]
+    assert result["error"] < 0.03
