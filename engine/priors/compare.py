@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.priors.base import PriorDepth
-from sparsesplat.engine.scene import View
+from sparsesplat.engine.scene import Scene, View
 
 MIN_PIXELS = 50
 """Fewer confident pixels than this gives NaN (no meaningful correlation)."""
@@ -111,6 +111,20 @@ def warp_error(
     }
 
 
+def closest_pair(scene: Scene) -> tuple[int, int]:
+    """(test position, train position) of the held-out view whose viewing direction is
+    closest to a training view's (a distinct camera centre is required)."""
+    best, pair = -2.0, (0, 0)
+    for i, t in enumerate(scene.test):
+        for j, v in enumerate(scene.train):
+            if float((t.camera.center - v.camera.center).norm()) < 1e-6:
+                continue
+            dot = float(t.camera.world_to_camera[2, :3] @ v.camera.world_to_camera[2, :3])
+            if dot > best:
+                best, pair = dot, (i, j)
+    return pair
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI: print the agreement of two priors on one scene as JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -125,7 +139,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=None,
         metavar="TEST:TRAIN",
         help="also warp test view TEST (source index) into training view number TRAIN "
-        "(0-based position) through prior --a and report the colour error",
+        "(0-based position) through prior --a and report the colour error; 'auto' picks the "
+        "test/training pair with the closest viewing directions",
     )
     args = parser.parse_args(argv)
     from sparsesplat.engine.datasets import load_scene
@@ -136,8 +151,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     b = compute_priors(scene, args.b, cache_dir=args.cache_dir)
     result: dict[str, object] = scene_agreement(a, b, args.threshold)
     if args.heldout:
-        test_id, train_pos = (int(x) for x in args.heldout.split(":"))
-        other = scene.test[scene.test_indices.index(test_id)]
+        if args.heldout == "auto":
+            test_pos, train_pos = closest_pair(scene)
+        else:
+            test_id, train_pos = (int(x) for x in args.heldout.split(":"))
+            test_pos = scene.test_indices.index(test_id)
+        other = scene.test[test_pos]
+        result["heldout_pair"] = [scene.test_indices[test_pos], train_pos]
         result["heldout"] = warp_error(scene.train[train_pos], other, a[train_pos], args.threshold)
     print(json.dumps({"scene": scene.name, "a": args.a, "b": args.b, **result}, indent=1))
     return 0
