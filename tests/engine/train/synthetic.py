@@ -32,7 +32,9 @@ def make_cameras(n: int, width: int, height: int, scale: float = 1.0) -> list[Ca
     for k in range(n):
         a = -0.5 + 1.0 * k / max(n - 1, 1)
         eye = torch.tensor([4.0 * math.sin(a), 0.3 * (k % 2), -4.0 * math.cos(a)]) * scale
-        cams.append(Camera(look_at(eye, torch.zeros(3)), f, f, width / 2, height / 2, width, height))
+        cams.append(
+            Camera(look_at(eye, torch.zeros(3)), f, f, width / 2, height / 2, width, height)
+        )
     return cams
 
 

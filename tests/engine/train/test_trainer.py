@@ -1,0 +1,181 @@
+"""Trainer behaviour at smoke scale (32x24 synthetic scenes, tens of iterations)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import random
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from sparsesplat.engine.errors import SceneError, TrainingDiverged
+from sparsesplat.engine.train import (
+    ModelCollapsed,
+    ProgressRecord,
+    StateChange,
+    Trainer,
+    load_model,
+    preset,
+)
+from tests.engine.train.synthetic import make_scene
+
+
+def small(**overrides: Any):  # type: ignore[no-untyped-def]
+    """The LLFF recipe compressed to smoke scale."""
+    base: dict[str, Any] = dict(
+        iterations=40, init_points=250, eval_interval_s=0, eval_lpips=False, export=False,
+        hash_log2_size=14, lr_means_start=0, lr_means_steps=40, soft_depth_start=15,
+        densify_from=10, densify_until=35, densify_interval=10, depth_smooth_start=20,
+        checkpoint_interval_s=0,
+    )  # fmt: skip
+    base.update(overrides)
+    return preset("llff", **base)
+
+
+def _params(t: Trainer) -> dict[str, torch.Tensor]:
+    out = {k: v.detach().clone() for k, v in t.gaussians.params.items()}
+    if hasattr(t.color, "field"):
+        out.update({f"field.{k}": v.clone() for k, v in t.color.field.state_dict().items()})
+    return out
+
+
+def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path) -> None:
+    seed = random.randrange(1000)
+    scene, priors = make_scene(seed=seed)
+    events: list[Any] = []
+    result = Trainer(
+        scene, small(eval_every=10, export=True), priors, tmp_path, events.append
+    ).run()
+    recs = [e for e in events if isinstance(e, ProgressRecord)]
+    states = [e.state for e in events if isinstance(e, StateChange)]
+    assert recs[0].iteration == 0 and recs[-1].final and recs[-1].iteration == 40
+    assert recs[-1].psnr > recs[0].psnr + 1.0, f"seed {seed}: {[r.psnr for r in recs]}"
+    assert recs[-1].train_loss < recs[1].train_loss, f"seed {seed}"
+    assert all(b.elapsed_s >= a.elapsed_s for a, b in itertools.pairwise(recs))
+    assert states[0] == "initializing" and states[-1] == "finished"
+    assert result.metrics["psnr"] == recs[-1].psnr and not result.stopped
+    for kind in ("checkpoint", "metrics"):
+        assert result.artifacts[kind].is_file(), kind
+    # The checkpoint renders the same image the trainer does.
+    model = load_model(result.artifacts["checkpoint"])
+    cam = scene.test[0].camera
+    a = model.render(cam).image
+    assert a.shape == (3, 24, 32) and bool(torch.isfinite(a).all())
+    assert len(model) == result.n_gaussians
+
+
+def test_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
+    seed = random.randrange(1000)
+    scene, priors = make_scene(seed=seed)
+    # One thread: torch's multi-threaded CPU kernels are not bit-reproducible run to run.
+    cfg = small(iterations=30, eval_every=5, seed=seed, densify_from=5, densify_interval=5,
+                densify_until=25, soft_depth_start=8, threads=1)  # fmt: skip
+    full = Trainer(scene, cfg, priors, tmp_path / "full")
+    full.run()
+
+    def stop_at_15(event: Any) -> Any:
+        return "stop" if isinstance(event, ProgressRecord) and event.iteration >= 15 else None
+
+    first = Trainer(scene, cfg, priors, tmp_path / "part", stop_at_15).run()
+    assert first.stopped and first.iteration == 15
+    resumed = Trainer(
+        scene, cfg, priors, tmp_path / "part", resume_from=first.artifacts["checkpoint"]
+    )
+    res = resumed.run()
+    assert res.iteration == 30 and not res.stopped
+    want, got = _params(full), _params(resumed)
+    assert want.keys() == got.keys()
+    for k in want:
+        assert torch.equal(want[k], got[k]), f"seed {seed}: {k} differs after resume"
+
+
+def test_learning_rates_100x_raise_diverged() -> None:
+    scene, priors = make_scene(seed=1)
+    m = 100.0
+    cfg = small(
+        lr_means_init=0.016 * m, lr_means_final=0.00016 * m, lr_opacity=0.05 * m,
+        lr_scaling=0.003 * m, lr_rotation=0.001 * m, lr_hash_grid=5e-3 * m, lr_mlp=5e-4 * m,
+    )  # fmt: skip
+    events: list[Any] = []
+    with pytest.raises(TrainingDiverged, match=r"step \d+.*parameter group '\w+'"):
+        Trainer(scene, cfg, priors, on_progress=events.append).run()
+    assert isinstance(events[-1], StateChange) and events[-1].state == "failed"
+
+
+def test_every_gaussian_pruned_stops_with_clear_error() -> None:
+    scene, priors = make_scene(seed=2)
+    with pytest.raises(ModelCollapsed, match=r"step 20: every Gaussian was pruned"):
+        Trainer(scene, small(prune_opacity=0.999, densify_from=10), priors).run()
+
+
+@pytest.mark.parametrize("fill", [0.0, 1.0])
+def test_all_black_and_all_white_images(fill: float) -> None:
+    scene, priors = make_scene(seed=3, image_fill=fill)
+    # A constant image has a constant-depth prior too (nothing to see).
+    flat = [torch.full_like(p, 5.0) for p in priors]
+    trainer = Trainer(scene, small(iterations=25), flat)
+    res = trainer.run()
+    first, last = res.records[0]["psnr"], res.records[-1]["psnr"]
+    assert math.isfinite(last) and last > first, (fill, first, last)
+    assert all(bool(torch.isfinite(p).all()) for p in _params(trainer).values()), fill
+
+
+@pytest.mark.parametrize("where", ["image", "patch"])
+def test_constant_depth_priors(where: str) -> None:
+    scene, priors = make_scene(seed=4)
+    if where == "image":
+        priors = [torch.full_like(p, 2.0) for p in priors]
+    else:
+        priors = [p.clone() for p in priors]
+        for p in priors:
+            p[:12, :16] = 2.0
+    res = Trainer(scene, small(iterations=25, soft_depth_start=5), priors).run()
+    assert math.isfinite(res.metrics["psnr"]) and res.n_gaussians > 0
+
+
+def test_scene_scale_does_not_change_quality() -> None:
+    seed = random.randrange(1000)
+    psnrs = {}
+    for scale in (1.0, 1e-3, 1e3):
+        scene, priors = make_scene(seed=seed, scale=scale)
+        psnrs[scale] = Trainer(scene, small(iterations=50), priors).run().metrics["psnr"]
+    spread = max(psnrs.values()) - min(psnrs.values())
+    assert spread < 0.5, f"seed {seed}: PSNR by scale {psnrs}"
+
+
+def test_two_trainers_in_one_process_do_not_interfere() -> None:
+    scene, priors = make_scene(seed=5)
+    cfg = small(iterations=12, eval_every=None, threads=1)
+    torch.set_num_threads(1)  # bit-exact comparison (the fixture restores the thread count)
+    a, b = Trainer(scene, cfg, priors), Trainer(scene, cfg, priors)
+    for _ in range(12):  # interleaved steps, global RNG disturbed in between
+        torch.manual_seed(random.randrange(1 << 30))
+        for t in (a, b):
+            t.iteration += 1
+            t._step()
+    solo = Trainer(scene, cfg, priors)
+    solo.run()
+    for k, v in _params(solo).items():
+        assert torch.equal(v, _params(a)[k]) and torch.equal(v, _params(b)[k]), k
+
+
+def test_sh_colour_without_depth(tmp_path: Path) -> None:
+    scene, _ = make_scene(seed=6)
+    cfg = small(color_model="sh", sh_degree=0, depth_prior="none", iterations=30, lr_sh=0.05)
+    t = Trainer(scene, cfg, None, tmp_path)
+    res = t.run()
+    assert set(t.gaussians.params) == {"means", "log_scales", "quats", "opacity_logits", "sh_dc"}
+    assert res.records[-1]["psnr"] > res.records[0]["psnr"]
+    model = load_model(tmp_path)
+    assert model.render(scene.test[0].camera).image.shape == (3, 24, 32)
+
+
+def test_missing_priors_is_a_scene_error() -> None:
+    scene, _ = make_scene(seed=7)
+    with pytest.raises(SceneError, match="priors"):
+        Trainer(scene, small(), None)
+    with pytest.raises(SceneError, match=r"priors\[0\]"):
+        Trainer(scene, small(), [torch.zeros(5, 5)] * 3)
