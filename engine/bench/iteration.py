@@ -1,0 +1,60 @@
+"""Seconds per training iteration at 504x378, split by stage (``make bench-iteration``).
+
+A synthetic 3-view scene (random Gaussian blob rendered as ground truth) and a model of ~20k and
+~50k Gaussians. Every pass runs (hard depth, soft depth, photometric with the neural field); the
+stages are: the two depth passes (render + loss + backward + Adam step), the neural field forward
+and backward, the photometric render forward, its loss, the raster+loss backward, densification
+bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from sparsesplat.engine.bench.common import machine_info, write_results
+
+
+def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dict[str, float]:
+    """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up)."""
+    from sparsesplat.engine.train import Trainer, preset
+    from tests.engine.train.synthetic import make_scene
+
+    scene, priors = make_scene(seed=0, width=width, height=height, n_gaussians=400)
+    cfg = preset(
+        "llff", init_points=n, profile=True, export=False, eval_interval_s=0,
+        densify_until=0, clean_iterations=(), iterations=10_000,
+    )  # fmt: skip
+    t = Trainer(scene, cfg, priors)
+    t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
+    t.iteration += 1
+    t._step()
+    t.timings.clear()
+    t0 = time.perf_counter()
+    for _ in range(iterations):
+        t.iteration += 1
+        t._step()
+    total = (time.perf_counter() - t0) / iterations
+    row = {k: v / iterations for k, v in t.timings.items()}
+    row.update(gaussians=len(t.gaussians), total_s=total)
+    return row
+
+
+def main() -> None:
+    """Print and save the table."""
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--iterations", type=int, default=5)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[20_000, 50_000])
+    args = parser.parse_args()
+    rows = []
+    for n in args.sizes:
+        r = measure(n, args.iterations)
+        rows.append({k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()})
+    cols = ["gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd", "photo_render",
+            "losses", "photo_backward", "neural_bwd", "optimizer", "setup"]  # fmt: skip
+    print(machine_info())
+    write_results("iteration", rows, cols)
+
+
+if __name__ == "__main__":
+    main()
