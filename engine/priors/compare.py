@@ -111,16 +111,22 @@ def warp_error(
     }
 
 
+MIN_HELDOUT_ANGLE_DEG = 5.0
+"""``--heldout auto`` skips test views within this angle of a training view: a near-duplicate
+viewpoint warps well under any depth and says nothing about the prior."""
+
+
 def closest_pair(scene: Scene) -> tuple[int, int]:
     """(test position, train position) of the held-out view whose viewing direction is
-    closest to a training view's (a distinct camera centre is required)."""
+    closest to a training view's, at least :data:`MIN_HELDOUT_ANGLE_DEG` apart."""
+    import math
+
+    limit = math.cos(math.radians(MIN_HELDOUT_ANGLE_DEG))
     best, pair = -2.0, (0, 0)
     for i, t in enumerate(scene.test):
         for j, v in enumerate(scene.train):
-            if float((t.camera.center - v.camera.center).norm()) < 1e-6:
-                continue
             dot = float(t.camera.world_to_camera[2, :3] @ v.camera.world_to_camera[2, :3])
-            if dot > best:
+            if best < dot < limit:
                 best, pair = dot, (i, j)
     return pair
 
