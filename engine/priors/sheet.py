@@ -64,13 +64,13 @@ def contact_sheet(
             x += tile.width + 4
         rows.append(row)
     header = 24
-    width = max(r.width for r in rows)
-    sheet = Image.new("RGB", (width, header + sum(r.height + 4 for r in rows)), (255, 255, 255))
     kind = priors[0].kind if priors else "none"
     text = title or (
         f"{scene.name} ({scene.format}) - prior: {kind} - image | depth (red near, blue far; "
         "grey = not confident) | confidence (white = 1)"
     )
+    width = max(max(r.width for r in rows), 6 * len(text) + 12)  # room for the title
+    sheet = Image.new("RGB", (width, header + sum(r.height + 4 for r in rows)), (255, 255, 255))
     ImageDraw.Draw(sheet).text((6, 6), text, fill=(0, 0, 0))
     y = header
     for row in rows:
