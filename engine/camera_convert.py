@@ -336,3 +336,27 @@ def undistort_image(
         src, torch.from_numpy(grid).float()[None], mode="bilinear", align_corners=False
     )
     return out[0].permute(1, 2, 0).numpy()
+
+
+def transforms_frame_from_camera(camera: Camera) -> dict[str, Any]:
+    """Internal camera -> an instant-ngp/nerfstudio ``transforms.json`` frame (per-frame
+    intrinsics, OpenGL camera-to-world); the inverse of :func:`camera_from_transforms_frame`."""
+    return {
+        "fl_x": camera.fx,
+        "fl_y": camera.fy,
+        "cx": camera.cx,
+        "cy": camera.cy,
+        "w": camera.width,
+        "h": camera.height,
+        "transform_matrix": opengl_c2w_from_w2c(camera.world_to_camera).tolist(),
+    }
+
+
+def camera_from_transforms_frame(
+    meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, source: str = "frame"
+) -> Camera:
+    """One transforms.json frame (header ``meta`` for shared keys) -> internal camera for an
+    image of ``width`` x ``height``."""
+    w2c = w2c_from_opengl_c2w(frame.get("transform_matrix"), source)
+    fx, fy, cx, cy = intrinsics_from_transforms(meta, frame, width, height, source)
+    return Camera(w2c, fx, fy, cx, cy, width, height)

@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from sparsesplat.engine.camera import Camera
-from sparsesplat.engine.camera_convert import intrinsics_from_transforms, w2c_from_opengl_c2w
+from sparsesplat.engine.camera_convert import camera_from_transforms_frame
 from sparsesplat.engine.datasets.common import load_view
 from sparsesplat.engine.datasets.splits import blender_split
 from sparsesplat.engine.errors import CameraError, SceneError
@@ -54,11 +54,11 @@ def frame_camera(root: Path, meta: dict[str, Any], frame: dict[str, Any], source
     path = frame_image_path(root, frame, source)
     width, height = image_size(path)
     try:
-        w2c = w2c_from_opengl_c2w(frame.get("transform_matrix"), f"{source} {frame['file_path']}")
-        fx, fy, cx, cy = intrinsics_from_transforms(meta, frame, width, height, source)
+        return camera_from_transforms_frame(
+            meta, frame, width, height, f"{source} {frame['file_path']}"
+        )
     except CameraError as exc:
         raise SceneError(str(exc)) from exc
-    return Camera(w2c, fx, fy, cx, cy, width, height)
 
 
 def load_frames(

@@ -12,6 +12,7 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import (
     camera_from_neus,
     camera_from_projection,
+    camera_from_transforms_frame,
     cameras_from_llff,
     intrinsics_from_transforms,
     llff_from_w2c,
@@ -20,6 +21,7 @@ from sparsesplat.engine.camera_convert import (
     project,
     rigid_inverse,
     rq_decomposition,
+    transforms_frame_from_camera,
     w2c_from_llff,
     w2c_from_opencv_c2w,
     w2c_from_opengl_c2w,
@@ -76,6 +78,12 @@ def test_round_trips_are_identity(rng: tuple[np.random.Generator, int]) -> None:
     ), f"neus intrinsics seed={seed}"
     back = w2c_from_opencv_c2w(rigid_inverse(w2c.numpy())).double()
     assert torch.allclose(back, w2c, atol=1e-5), f"opencv seed={seed}"
+    frame = transforms_frame_from_camera(cam)
+    ngp = camera_from_transforms_frame({}, frame, cam.width, cam.height)
+    assert torch.allclose(ngp.world_to_camera.double(), w2c, atol=1e-5), f"ngp seed={seed}"
+    assert (ngp.fx, ngp.fy, ngp.cx, ngp.cy) == (cam.fx, cam.fy, cam.cx, cam.cy)
+    half = camera_from_transforms_frame({}, frame, cam.width // 2, cam.height // 2)
+    assert half.fx == cam.fx / 2 and half.cy == cam.cy / 2, "intrinsics follow the image size"
 
 
 def test_same_point_same_pixel_through_every_convention(
