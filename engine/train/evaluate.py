@@ -1,92 +1,71 @@
-"""Held-out evaluation: PSNR, SSIM, LPIPS and AVGE of renders against ground truth.
+"""Held-out evaluation during training, with the paper's protocol from ``engine.metrics``.
 
-Uses ``sparsesplat.engine.metrics`` when it provides the functions; falls back to a local PSNR
-and the 3DGS SSIM otherwise, and reports LPIPS/AVGE as None when LPIPS cannot be computed
-(e.g. weights absent), never failing the run for a missing metric.
+Renders and ground truth are rounded to 8 bits first (the reference scores saved PNGs);
+DTU views (those with a mask) use the masked PSNR and white-composited SSIM/LPIPS. LPIPS needs
+the VGG weights in the models directory: when they are absent, LPIPS and AVGE are reported as
+None (with one warning) rather than failing the run.
 """
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
-import torch
 from torch import Tensor
 
-from sparsesplat.engine.losses import ssim as gs_ssim
+from sparsesplat.engine.metrics.image import composite_white, masked_psnr, psnr, quantize, ssim
+from sparsesplat.engine.metrics.lpips import LPIPS
+from sparsesplat.engine.weights import WeightsNotFound
 
+log = logging.getLogger(__name__)
 
-def _psnr(pred: Tensor, gt: Tensor) -> float:
-    mse = float(torch.mean((pred.double() - gt.double()) ** 2))
-    return 99.0 if mse <= 1e-10 else -10.0 * math.log10(mse)
+# PSNR of identical images is +inf; records keep a finite, recognisable ceiling instead so
+# JSON/CSV stay valid numbers.
+PSNR_CEILING = 99.0
 
 
 class Evaluator:
-    """Scores (3, H, W) renders against (3, H, W) ground truth, metric backends resolved once."""
+    """Scores (3, H, W) renders against (H, W, 3) ground truth; the LPIPS net is loaded once."""
 
     def __init__(self, use_lpips: bool = True) -> None:
-        """Resolve the metric implementations (LPIPS only if ``use_lpips``)."""
-        self._psnr: Callable[[Tensor, Tensor], float] = _psnr
-        self._ssim: Callable[[Tensor, Tensor], float] = lambda a, b: float(gs_ssim(a, b))
-        self._lpips: Callable[[Tensor, Tensor], float] | None = None
-        self.ssim_kind = "gs"
-        """Which SSIM is reported: 'sk' (scikit-image, the paper's) or 'gs' (3DGS fallback)."""
-        try:
-            from sparsesplat.engine import metrics
-
-            if hasattr(metrics, "psnr"):
-                self._psnr = lambda a, b: float(metrics.psnr(_hwc(a), _hwc(b)))
-            if hasattr(metrics, "ssim"):
-                self._ssim = lambda a, b: float(metrics.ssim(_hwc(a), _hwc(b)))
-                self.ssim_kind = "sk"
-            if use_lpips:
-                self._lpips = _make_lpips(metrics)
-        except Exception:  # metrics module absent or broken: keep the fallbacks
-            pass
-
-    def score(self, pred: Tensor, gt: Tensor) -> dict[str, float | None]:
-        """Metrics of one view (images clamped to [0, 1] first, as when saved)."""
-        pred = pred.detach().clamp(0, 1).float().cpu()
-        gt = gt.detach().float().cpu()
-        lp = None
-        if self._lpips is not None:
+        """Load LPIPS-VGG if ``use_lpips`` and its weights are available."""
+        self.lpips: LPIPS | None = None
+        if use_lpips:
             try:
-                lp = float(self._lpips(pred, gt))
-            except Exception:
-                self._lpips = None
-        return {"psnr": self._psnr(pred, gt), "ssim": self._ssim(pred, gt), "lpips": lp}
+                self.lpips = LPIPS()
+            except WeightsNotFound as exc:
+                log.warning("LPIPS disabled: %s", exc)
+
+    def score(
+        self, pred: Tensor, gt: Tensor, mask: Tensor | None = None
+    ) -> dict[str, float | None]:
+        """Metrics of one view: ``pred`` (3, H, W), ``gt`` (H, W, 3), optional (H, W) mask."""
+        render = quantize(pred.detach().clamp(0, 1).permute(1, 2, 0).float().cpu())
+        truth = quantize(gt.detach().float().cpu())
+        if mask is not None:
+            m = mask.detach().cpu().float().numpy()
+            value = masked_psnr(render, truth, m)
+            render, truth = composite_white(render, m), composite_white(truth, m)
+        else:
+            value = psnr(render, truth)
+        lp = self.lpips.distance(render, truth) if self.lpips is not None else None
+        return {"psnr": min(value, PSNR_CEILING), "ssim": ssim(render, truth), "lpips": lp}
 
     def mean(self, scores: Sequence[dict[str, float | None]]) -> dict[str, float | None]:
         """Scene means plus AVGE (geometric mean of MSE, sqrt(1 - SSIM), LPIPS)."""
         out: dict[str, float | None] = {}
         for key in ("psnr", "ssim", "lpips"):
             vals = [s[key] for s in scores if s[key] is not None]
-            out[key] = sum(vals) / len(vals) if vals and len(vals) == len(scores) else None
+            out[key] = sum(vals) / len(vals) if vals and len(vals) == len(scores) else None  # type: ignore[arg-type]
         out["avge"] = avge(out["psnr"], out["ssim"], out["lpips"])
         return out
 
 
-def avge(psnr: float | None, ssim: float | None, lpips: float | None) -> float | None:
+def avge(psnr_db: float | None, ssim_value: float | None, lpips: float | None) -> float | None:
     """AVGE (RegNeRF definition) from scene-mean PSNR, SSIM and LPIPS; None if any is None."""
-    if psnr is None or ssim is None or lpips is None:
+    if psnr_db is None or ssim_value is None or lpips is None:
         return None
-    mse = 10 ** (-psnr / 10)
-    dssim = math.sqrt(max(1.0 - ssim, 0.0))
+    mse = 10 ** (-psnr_db / 10)
+    dssim = math.sqrt(max(1.0 - ssim_value, 0.0))
     return (mse * dssim * max(lpips, 0.0)) ** (1.0 / 3.0)
-
-
-def _hwc(x: Tensor) -> Tensor:
-    return x.permute(1, 2, 0).contiguous()
-
-
-def _make_lpips(metrics: Any) -> Callable[[Tensor, Tensor], float] | None:
-    """Find an LPIPS entry point in the metrics module (function or class); None if absent."""
-    fn = getattr(metrics, "lpips", None)
-    if callable(fn) and not isinstance(fn, type):
-        return lambda a, b: float(fn(_hwc(a), _hwc(b)))
-    cls = getattr(metrics, "LPIPS", None)
-    if isinstance(cls, type):
-        model = cls()
-        return lambda a, b: float(model(_hwc(a), _hwc(b)))
-    return None
