@@ -4,19 +4,30 @@ Matches torch-ngp's layout with ``align_corners=False``: level l has ``scale = b
 cells and ``ceil(scale) + 1`` vertices per axis, inputs in [0, 1] map to ``x * scale + 0.5``,
 trilinear interpolation of the 8 surrounding vertices. A level whose dense vertex count fits the
 table is indexed densely, otherwise by the XOR-of-primes spatial hash. Inputs outside [0, 1]
-get zero features (as the CUDA kernel does). The backward pass is autograd's scatter-add into a
-dense gradient of the table, so a standard dense Adam sees exactly what the reference's does.
+get zero features (as the CUDA kernel does). The table gradient is dense, so a standard dense
+Adam sees exactly what the reference's does.
+
+Two implementations with the same numbers: the native C++/OpenMP kernels (engine/color/cpu/, the
+default for float32 CPU tensors) and the plain-torch one below (the reference, used for other
+devices and dtypes, e.g. float64 gradcheck). ``backend="torch"`` or the environment variable
+``SPARSESPLAT_HASHGRID=torch`` forces the torch one.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import torch
 from torch import Tensor, nn
 
 _PRIMES = (1, 2654435761, 805459861)
 _CORNERS = torch.tensor([[(c >> d) & 1 for d in range(3)] for c in range(8)], dtype=torch.long)
+BACKENDS = ("auto", "native", "torch")
+"""Accepted ``HashGrid(backend=...)`` values (and of $SPARSESPLAT_HASHGRID)."""
+BACKEND_ENV = "SPARSESPLAT_HASHGRID"
+"""Environment variable overriding an 'auto' backend: 'torch' or 'native'."""
+_NATIVE_FEATURES = (1, 2, 4, 8)
 
 
 class _Gather(torch.autograd.Function):
@@ -49,9 +60,17 @@ class HashGrid(nn.Module):
         finest_resolution: int = 2048,
         init_range: float = 1e-4,
         generator: torch.Generator | None = None,
+        backend: str = "auto",
     ) -> None:
-        """Build the levels and initialize the table U(-init_range, init_range)."""
+        """Build the levels and initialize the table U(-init_range, init_range).
+
+        ``backend``: 'auto' (native kernels for float32 CPU inputs, torch otherwise; the
+        environment variable SPARSESPLAT_HASHGRID=torch|native overrides it), 'native' (error
+        when the inputs do not suit it) or 'torch'."""
         super().__init__()
+        if backend not in BACKENDS:
+            raise ValueError(f"HashGrid backend: expected one of {BACKENDS}, got {backend!r}")
+        self.backend = backend
         self.n_levels = n_levels
         self.n_features = n_features
         self.table_size = 2**log2_table_size
@@ -97,8 +116,47 @@ class HashGrid(nn.Module):
             self._consts = cache
         return cache
 
+    def layout(self) -> tuple[list[float], list[int], list[int], list[int], list[bool]]:
+        """Per-level (scales, sizes, dense strides, offsets incl. the total rows, dense flags)."""
+        strides = [r + 1 for r in self.resolutions]
+        return self.scales, self.sizes, strides, self.offsets, self.dense
+
+    def uses_native(self, x: Tensor) -> bool:
+        """Whether :meth:`forward` would run the native kernels for input ``x``."""
+        backend = self.backend
+        if backend == "auto":
+            backend = os.environ.get(BACKEND_ENV, "auto").strip().lower() or "auto"
+            if backend not in BACKENDS:
+                raise ValueError(f"${BACKEND_ENV}: expected one of {BACKENDS}, got {backend!r}")
+        if backend == "torch":
+            return False
+        suited = (
+            x.device.type == "cpu"
+            and self.embeddings.device.type == "cpu"
+            and x.dtype == torch.float32
+            and self.embeddings.dtype == torch.float32
+            and self.n_features in _NATIVE_FEATURES
+        )
+        if backend == "native" and not suited:
+            raise ValueError(
+                f"HashGrid backend='native' needs float32 CPU inputs and table and "
+                f"n_features in {_NATIVE_FEATURES}; got x {x.dtype} on {x.device}, table "
+                f"{self.embeddings.dtype} on {self.embeddings.device}, n_features={self.n_features}"
+            )
+        return suited
+
     def forward(self, x: Tensor) -> Tensor:
-        """Encode (N, 3) points in [0, 1]; points outside get zeros (and no gradient).
+        """Encode (N, 3) points in [0, 1]; points outside get zeros (and no gradient)."""
+        if x.dim() != 2 or x.shape[-1] != 3:
+            raise ValueError(f"HashGrid input: expected shape (N, 3), got {tuple(x.shape)}")
+        if self.uses_native(x):
+            from sparsesplat.engine.color.hashgrid_native import encode_native
+
+            return encode_native(x, self.embeddings, self.layout())
+        return self.forward_torch(x)
+
+    def forward_torch(self, x: Tensor) -> Tensor:
+        """The plain-torch reference implementation of :meth:`forward`.
 
         All levels are gathered in one indexing op so the backward builds ONE dense gradient
         of the table (per-level gathers would each allocate a table-sized zero tensor)."""

@@ -1,0 +1,199 @@
+// Native CPU hash-grid encoder: argument checks, the OpenMP loops over levels and point blocks,
+// and the run-time choice of the per-ISA level kernels (kernels.h). The Python side
+// (engine/color/hashgrid_native.py) wraps forward/backward in a torch.autograd.Function.
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "common.h"
+
+namespace {
+
+using LevelFn = void (*)(const LevelArgs&, int);
+
+struct Variant {
+  const char* name;
+  LevelFn fwd;
+  LevelFn bwd;
+};
+
+bool cpu_has_avx512() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+         __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
+}
+
+// The kernel variant for this CPU; SPARSESPLAT_HASHGRID_ISA=avx2 forces the baseline.
+Variant pick_variant() {
+  const char* force = std::getenv("SPARSESPLAT_HASHGRID_ISA");
+  const bool want_avx2 = force && std::string(force) == "avx2";
+  if (!want_avx2 && cpu_has_avx512())
+    return {"avx512", avx512::forward_level, avx512::backward_level};
+  return {"avx2", avx2::forward_level, avx2::backward_level};
+}
+
+const Variant& variant() {
+  static Variant v = pick_variant();
+  return v;
+}
+
+int n_threads() { return std::max(1, at::get_num_threads()); }
+
+constexpr int64_t kPointsPerTask = 4096;  // forward work unit: one level x this many points
+
+void check_tensor(const torch::Tensor& t, const char* name, int64_t cols) {
+  TORCH_CHECK(t.device().is_cpu(), name, ": expected a CPU tensor, got ", t.device());
+  TORCH_CHECK(t.scalar_type() == torch::kFloat32, name, ": expected float32, got ",
+              t.scalar_type());
+  TORCH_CHECK(t.dim() == 2 && t.size(1) == cols, name, ": expected shape (*, ", cols, "), got ",
+              t.sizes());
+  TORCH_CHECK(t.is_contiguous(), name, ": expected a contiguous tensor");
+}
+
+// Level table from the Python layout lists; checks they describe the table exactly.
+std::vector<Level> make_levels(const std::vector<double>& scales,
+                               const std::vector<int64_t>& sizes,
+                               const std::vector<int64_t>& strides,
+                               const std::vector<int64_t>& offsets,
+                               const std::vector<bool>& dense, int64_t rows) {
+  const size_t L = scales.size();
+  TORCH_CHECK(sizes.size() == L && strides.size() == L && dense.size() == L &&
+                  offsets.size() == L + 1,
+              "hash grid layout: inconsistent level list lengths");
+  TORCH_CHECK(offsets[L] == rows, "hash grid layout: table has ", rows, " rows, levels need ",
+              offsets[L]);
+  std::vector<Level> out(L);
+  for (size_t l = 0; l < L; ++l) {
+    const int64_t size = sizes[l];
+    TORCH_CHECK(size > 0 && size <= (int64_t(1) << 32) - 1 && offsets[l + 1] - offsets[l] == size,
+                "hash grid layout: bad size for level ", l);
+    TORCH_CHECK(strides[l] > 0 && (!dense[l] || strides[l] * strides[l] * strides[l] <= size),
+                "hash grid layout: bad dense stride for level ", l);
+    Level& lv = out[l];
+    lv.scale = (float)scales[l];  // the reference holds the scales as float32
+    lv.size = (uint32_t)size;
+    lv.stride = (uint32_t)strides[l];
+    lv.mask = (size & (size - 1)) == 0 ? (uint32_t)(size - 1) : 0u;
+    lv.offset = offsets[l];
+    lv.dense = dense[l];
+  }
+  return out;
+}
+
+torch::Tensor forward(torch::Tensor x, torch::Tensor table, std::vector<double> scales,
+                      std::vector<int64_t> sizes, std::vector<int64_t> strides,
+                      std::vector<int64_t> offsets, std::vector<bool> dense) {
+  check_tensor(x, "x", 3);
+  TORCH_CHECK(table.dim() == 2, "embeddings: expected a 2-D table");
+  const int F = (int)table.size(1);
+  TORCH_CHECK(F == 1 || F == 2 || F == 4 || F == 8, "embeddings: features per level must be "
+              "1, 2, 4 or 8, got ", F);
+  check_tensor(table, "embeddings", F);
+  const auto levels = make_levels(scales, sizes, strides, offsets, dense, table.size(0));
+  const int64_t N = x.size(0), L = (int64_t)levels.size();
+  auto out = torch::empty({N, L * F}, x.options());
+  if (N == 0 || L == 0) return out;
+  const int64_t blocks = (N + kPointsPerTask - 1) / kPointsPerTask;
+  const LevelFn fwd = variant().fwd;
+  const float* px = x.data_ptr<float>();
+  const float* pt = table.data_ptr<float>();
+  float* po = out.data_ptr<float>();
+  // Task t = (level t / blocks, block t % blocks): threads sweep one level's table together.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(n_threads())
+  for (int64_t t = 0; t < L * blocks; ++t) {
+    const int64_t l = t / blocks, blk = t % blocks;
+    LevelArgs a{};
+    a.x = px;
+    a.table = pt;
+    a.level = levels[l];
+    a.begin = blk * kPointsPerTask;
+    a.end = std::min(N, a.begin + kPointsPerTask);
+    a.out = po;
+    a.out_stride = L * F;
+    a.col = l * F;
+    fwd(a, F);
+  }
+  return out;
+}
+
+// Returns (grad_x or an empty tensor, grad_table or an empty tensor).
+std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch::Tensor grad_out,
+                                    std::vector<double> scales, std::vector<int64_t> sizes,
+                                    std::vector<int64_t> strides, std::vector<int64_t> offsets,
+                                    std::vector<bool> dense, bool need_x, bool need_table) {
+  check_tensor(x, "x", 3);
+  const int F = (int)table.size(1);
+  check_tensor(table, "embeddings", F);
+  const auto levels = make_levels(scales, sizes, strides, offsets, dense, table.size(0));
+  const int64_t N = x.size(0), L = (int64_t)levels.size();
+  check_tensor(grad_out, "grad_out", L * F);
+  TORCH_CHECK(grad_out.size(0) == N, "grad_out: expected ", N, " rows, got ", grad_out.size(0));
+  torch::Tensor gx, gx_levels, gt;
+  if (need_x) {
+    gx = torch::empty({N, 3}, x.options());
+    gx_levels = torch::empty({L, N, 3}, x.options());
+  }
+  // Dense gradient like the reference's; every row is written by the level that owns it.
+  if (need_table) gt = torch::empty_like(table);
+  const LevelFn bwd = variant().bwd;
+  const float* px = x.data_ptr<float>();
+  const float* pt = table.data_ptr<float>();
+  const float* pg = grad_out.data_ptr<float>();
+  float* pgt = need_table ? gt.data_ptr<float>() : nullptr;
+  float* pgl = need_x ? gx_levels.data_ptr<float>() : nullptr;
+  if (N > 0 && L > 0 && (need_x || need_table)) {
+    // One level per task: the level's gradient rows have a single writer (no atomics) and are
+    // summed in point order, so the result does not depend on the thread count.
+#pragma omp parallel for schedule(dynamic, 1) num_threads(n_threads())
+    for (int64_t l = 0; l < L; ++l) {
+      const Level& lv = levels[l];
+      if (pgt) std::memset(pgt + lv.offset * F, 0, sizeof(float) * lv.size * F);
+      LevelArgs a{};
+      a.x = px;
+      a.table = pt;
+      a.level = lv;
+      a.begin = 0;
+      a.end = N;
+      a.out_stride = L * F;
+      a.col = l * F;
+      a.grad_out = pg;
+      a.grad_table = pgt;
+      a.grad_x = pgl ? pgl + l * N * 3 : nullptr;
+      bwd(a, F);
+    }
+  } else if (pgt) {
+    gt.zero_();
+  }
+  if (need_x) {
+    float* o = gx.data_ptr<float>();
+    if (L == 0) {
+      gx.zero_();
+    } else {
+      // Sum the per-level position gradients in level order (deterministic).
+      at::parallel_for(0, N * 3, 16384, [&](int64_t lo, int64_t hi) {
+        for (int64_t k = lo; k < hi; ++k) o[k] = pgl[k];
+        for (int64_t l = 1; l < L; ++l) {
+          const float* p = pgl + l * N * 3;
+          for (int64_t k = lo; k < hi; ++k) o[k] += p[k];
+        }
+      });
+    }
+  }
+  return {need_x ? gx : torch::Tensor(), need_table ? gt : torch::Tensor()};
+}
+
+std::string variant_name() { return variant().name; }
+
+}  // namespace
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("forward", &forward, "Hash-grid encoding (N, 3) -> (N, levels * features)");
+  m.def("backward", &backward, "Gradients w.r.t. the inputs and the (dense) table");
+  m.def("variant", &variant_name, "Kernel instruction-set variant chosen for this CPU");
+}

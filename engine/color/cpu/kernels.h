@@ -1,0 +1,193 @@
+// Per-level hash-grid kernels (forward, backward), written once and compiled per instruction set.
+//
+// Included by kernels_avx2.cpp and kernels_avx512.cpp, each defining HG_NS (the namespace) first;
+// hashgrid.cpp picks one at run time. No OpenMP in here: hashgrid.cpp parallelizes over
+// (level, block of points) in the forward and over levels in the backward, so one call of a
+// kernel touches one level's table only (a few MB: cache friendly, and in the backward the level's
+// gradient rows belong to a single thread, so there are no atomics and the sums are
+// deterministic).
+//
+// Each block of points is done in two phases: a branch-free arithmetic phase (positions, the 8
+// corner indices and trilinear weights, which the compiler vectorizes) and a gather phase whose
+// loads are independent, so the out-of-order core overlaps the cache misses of the hashed levels.
+// The arithmetic is float32 in the reference's order (x * scale, then + 0.5; weights multiplied
+// axis 0, 1, 2), and the build disables FMA contraction, so the corner selection (floor) and
+// weights are the torch reference's bit for bit.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+
+#include "common.h"
+
+namespace HG_NS {
+
+constexpr int kBlock = 64;
+constexpr uint32_t kPrime1 = 2654435761u;
+constexpr uint32_t kPrime2 = 805459861u;
+
+// Phase 1 for one block: per point the inside flag, per corner the row (relative to the level's
+// first row) and the weight, plus the per-axis fractions for the position gradient.
+struct Block {
+  alignas(64) uint32_t idx[8][kBlock];
+  alignas(64) float w[8][kBlock];
+  alignas(64) float frac[3][kBlock];
+  alignas(64) int32_t inside[kBlock];
+};
+
+static inline void corners(const float* __restrict x, const Level& lv, int64_t begin, int n,
+                           Block& b) {
+  const float scale = lv.scale;
+  const uint32_t s1 = lv.stride, s2 = lv.stride * lv.stride;
+  const bool dense = lv.dense;
+  for (int i = 0; i < n; ++i) {
+    const float* p = x + 3 * (begin + i);
+    float x0 = p[0], x1 = p[1], x2 = p[2];
+    // NaN fails every comparison, so it counts as outside (as in the reference).
+    const bool in = (x0 >= 0.f) & (x0 <= 1.f) & (x1 >= 0.f) & (x1 <= 1.f) & (x2 >= 0.f) &
+                    (x2 <= 1.f);
+    b.inside[i] = in ? -1 : 0;
+    // Outside points are evaluated at the origin (valid indices) and masked later.
+    x0 = in ? x0 : 0.f;
+    x1 = in ? x1 : 0.f;
+    x2 = in ? x2 : 0.f;
+    const float p0 = x0 * scale + 0.5f, p1 = x1 * scale + 0.5f, p2 = x2 * scale + 0.5f;
+    const float f0 = std::floor(p0), f1 = std::floor(p1), f2 = std::floor(p2);
+    const float t0 = p0 - f0, t1 = p1 - f1, t2 = p2 - f2;
+    b.frac[0][i] = t0;
+    b.frac[1][i] = t1;
+    b.frac[2][i] = t2;
+    const uint32_t g0 = (uint32_t)(int32_t)f0, g1 = (uint32_t)(int32_t)f1,
+                   g2 = (uint32_t)(int32_t)f2;
+    const float a0[2] = {1.f - t0, t0}, a1[2] = {1.f - t1, t1}, a2[2] = {1.f - t2, t2};
+    for (int c = 0; c < 8; ++c) {
+      const uint32_t c0 = c & 1, c1 = (c >> 1) & 1, c2 = (c >> 2) & 1;
+      b.w[c][i] = (a0[c0] * a1[c1]) * a2[c2];
+      const uint32_t v0 = g0 + c0, v1 = g1 + c1, v2 = g2 + c2;
+      b.idx[c][i] = dense ? v0 + v1 * s1 + v2 * s2 : v0 ^ (v1 * kPrime1) ^ (v2 * kPrime2);
+    }
+  }
+  // Fold into the level: a mask for power-of-two sizes (every hashed level of the default
+  // layout), a true modulo otherwise (dense indices are already < size; kept for exactness).
+  if (lv.mask) {
+    for (int c = 0; c < 8; ++c)
+      for (int i = 0; i < n; ++i) b.idx[c][i] &= lv.mask;
+  } else {
+    for (int c = 0; c < 8; ++c)
+      for (int i = 0; i < n; ++i) b.idx[c][i] %= lv.size;
+  }
+}
+
+// Phase 2: copy the 8 corner rows of every point of the block into structure-of-arrays form.
+// A tight loop of independent loads, so many cache misses are in flight at once (the hashed
+// levels' tables are megabytes); the arithmetic after it then runs on contiguous vectors.
+template <int F>
+static inline void gather(const float* __restrict tab, const Block& b, int n,
+                          float (&rows)[8][F][kBlock]) {
+  for (int c = 0; c < 8; ++c) {
+    for (int i = 0; i < n; ++i) {
+      const float* r = tab + (int64_t)b.idx[c][i] * F;
+      for (int f = 0; f < F; ++f) rows[c][f][i] = r[f];
+    }
+  }
+}
+
+template <int F>
+static void forward_impl(const LevelArgs& a) {
+  const float* __restrict tab = a.table + a.level.offset * F;
+  Block b;
+  alignas(64) float rows[8][F][kBlock];
+  alignas(64) float acc[F][kBlock];
+  for (int64_t start = a.begin; start < a.end; start += kBlock) {
+    const int n = (int)std::min<int64_t>(kBlock, a.end - start);
+    corners(a.x, a.level, start, n, b);
+    gather<F>(tab, b, n, rows);
+    for (int f = 0; f < F; ++f) {
+      for (int i = 0; i < n; ++i) acc[f][i] = 0.f;
+      for (int c = 0; c < 8; ++c)
+        for (int i = 0; i < n; ++i) acc[f][i] += b.w[c][i] * rows[c][f][i];
+      for (int i = 0; i < n; ++i) acc[f][i] = b.inside[i] ? acc[f][i] : 0.f;
+    }
+    for (int i = 0; i < n; ++i) {
+      float* o = a.out + (start + i) * a.out_stride + a.col;
+      for (int f = 0; f < F; ++f) o[f] = acc[f][i];
+    }
+  }
+}
+
+template <int F>
+static void backward_impl(const LevelArgs& a) {
+  const float* __restrict tab = a.table + a.level.offset * F;
+  float* __restrict gtab = a.grad_table ? a.grad_table + a.level.offset * F : nullptr;
+  const float scale = a.level.scale;
+  Block b;
+  alignas(64) float rows[8][F][kBlock];
+  alignas(64) float g[F][kBlock];
+  alignas(64) float d[3][kBlock];
+  alignas(64) float s[kBlock];
+  for (int64_t start = a.begin; start < a.end; start += kBlock) {
+    const int n = (int)std::min<int64_t>(kBlock, a.end - start);
+    corners(a.x, a.level, start, n, b);
+    // Outside points get zero features: zero upstream gradient, hence no contribution at all.
+    for (int i = 0; i < n; ++i) {
+      const float* go = a.grad_out + (start + i) * a.out_stride + a.col;
+      for (int f = 0; f < F; ++f) g[f][i] = b.inside[i] ? go[f] : 0.f;
+    }
+    if (gtab) {
+      for (int c = 0; c < 8; ++c) {
+        for (int i = 0; i < n; ++i) {
+          if (!b.inside[i]) continue;
+          float* r = gtab + (int64_t)b.idx[c][i] * F;
+          const float w = b.w[c][i];
+          for (int f = 0; f < F; ++f) r[f] += w * g[f][i];
+        }
+      }
+    }
+    if (a.grad_x) {
+      // d out / d frac_k = sum_c <g, row_c> * (+-1) * (weights of the two other axes).
+      gather<F>(tab, b, n, rows);
+      for (int k = 0; k < 3; ++k)
+        for (int i = 0; i < n; ++i) d[k][i] = 0.f;
+      for (int c = 0; c < 8; ++c) {
+        const int c0 = c & 1, c1 = (c >> 1) & 1, c2 = (c >> 2) & 1;
+        for (int i = 0; i < n; ++i) s[i] = 0.f;
+        for (int f = 0; f < F; ++f)
+          for (int i = 0; i < n; ++i) s[i] += g[f][i] * rows[c][f][i];
+        for (int i = 0; i < n; ++i) {
+          const float t0 = b.frac[0][i], t1 = b.frac[1][i], t2 = b.frac[2][i];
+          const float w0 = c0 ? t0 : 1.f - t0, w1 = c1 ? t1 : 1.f - t1, w2 = c2 ? t2 : 1.f - t2;
+          const float si = s[i];
+          d[0][i] += (c0 ? si : -si) * (w1 * w2);
+          d[1][i] += (c1 ? si : -si) * (w0 * w2);
+          d[2][i] += (c2 ? si : -si) * (w0 * w1);
+        }
+      }
+      for (int i = 0; i < n; ++i) {
+        float* gx = a.grad_x + 3 * (start + i);
+        gx[0] = d[0][i] * scale;
+        gx[1] = d[1][i] * scale;
+        gx[2] = d[2][i] * scale;
+      }
+    }
+  }
+}
+
+void forward_level(const LevelArgs& a, int F) {
+  switch (F) {
+    case 1: return forward_impl<1>(a);
+    case 2: return forward_impl<2>(a);
+    case 4: return forward_impl<4>(a);
+    case 8: return forward_impl<8>(a);
+  }
+}
+
+void backward_level(const LevelArgs& a, int F) {
+  switch (F) {
+    case 1: return backward_impl<1>(a);
+    case 2: return backward_impl<2>(a);
+    case 4: return backward_impl<4>(a);
+    case 8: return backward_impl<8>(a);
+  }
+}
+
+}  // namespace HG_NS

@@ -1,0 +1,45 @@
+"""Autograd wrapper of the native CPU hash-grid kernels (engine/color/cpu/).
+
+The forward saves only the inputs and the table; the backward recomputes the corner indices and
+weights (cheap next to the gathers) and returns the position gradient and a dense table gradient,
+each only when autograd asks for it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.color.build import load_extension
+
+Layout = tuple[list[float], list[int], list[int], list[int], list[bool]]
+"""(scales, sizes, dense strides, offsets incl. the total, dense flags) per level."""
+
+
+class _Encode(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, x: Tensor, table: Tensor, layout: Layout) -> Tensor:  # type: ignore[override]
+        ext = load_extension()
+        out = ext.forward(x, table, *layout)
+        ctx.save_for_backward(x, table)
+        ctx.layout = layout
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None]:  # type: ignore[override]
+        x, table = ctx.saved_tensors
+        need_x, need_table = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        if not (need_x or need_table):
+            return None, None, None
+        ext = load_extension()
+        gx, gt = ext.backward(
+            x, table, grad.contiguous(), *ctx.layout, bool(need_x), bool(need_table)
+        )
+        return gx, gt, None
+
+
+def encode_native(x: Tensor, table: Tensor, layout: Layout) -> Tensor:
+    """(N, 3) float32 CPU points → (N, levels * features) with the native kernels."""
+    return _Encode.apply(x.contiguous(), table.contiguous(), layout)
