@@ -1,0 +1,149 @@
+"""Native C++ hash grid vs the torch reference: values, table and position gradients, dispatch."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+import torch
+
+from sparsesplat.engine.color.hashgrid import HashGrid
+
+
+def _grid(seed: int, **kw: object) -> HashGrid:
+    """A grid with a non-trivial table (U(-1, 1)) so gradients and values are O(1)."""
+    g = torch.Generator().manual_seed(seed)
+    grid = HashGrid(generator=g, **kw)  # type: ignore[arg-type]
+    with torch.no_grad():
+        grid.embeddings.uniform_(-1, 1, generator=g)
+    return grid
+
+
+def _points(grid: HashGrid, n: int, seed: int) -> torch.Tensor:
+    """Random points inside, outside, exactly 0/1 per axis, and on cell boundaries of levels."""
+    g = torch.Generator().manual_seed(seed)
+    inside = torch.rand(n, 3, generator=g)
+    outside = torch.rand(n // 4, 3, generator=g) * 1.4 - 0.2  # partly outside [0, 1]
+    ends = torch.randint(0, 2, (n // 8, 3), generator=g).float()  # corners of the cube
+    mixed = torch.rand(n // 8, 3, generator=g)
+    mixed[torch.rand(n // 8, 3, generator=g) < 0.5] = 1.0
+    mixed[torch.rand(n // 8, 3, generator=g) < 0.3] = 0.0
+    # Vertex planes: x * scale + 0.5 an integer (as close as float32 gets) for a random level.
+    bound = []
+    for _ in range(n // 8):
+        scale = grid.scales[int(torch.randint(0, grid.n_levels, (1,), generator=g))]
+        k = torch.randint(1, max(2, int(scale)), (3,), generator=g).float()
+        bound.append((k - 0.5) / scale)
+    just_out = torch.tensor([[1.0 + 1e-7, 0.5, 0.5], [0.5, -1e-8, 0.5], [0.5, 0.5, 1.0]])
+    return torch.cat([inside, outside, ends, mixed, torch.stack(bound), just_out]).contiguous()
+
+
+def _run(grid: HashGrid, x: torch.Tensor, backend: str, upstream: torch.Tensor):
+    grid.backend = backend
+    grid.embeddings.grad = None
+    xr = x.clone().requires_grad_(True)
+    out = grid(xr)
+    out.backward(upstream)
+    assert grid.embeddings.grad is not None and xr.grad is not None
+    return out.detach(), grid.embeddings.grad.clone(), xr.grad.clone()
+
+
+LAYOUTS = [
+    # (n_levels, n_features, log2_table_size, base, finest): coarse levels dense, fine ones hashed
+    (8, 2, 12, 4, 256),
+    (4, 1, 10, 8, 64),
+    (6, 4, 11, 3, 128),
+    (3, 8, 9, 5, 40),
+]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_native_matches_torch(layout: tuple[int, int, int, int, int]) -> None:
+    """Forward values, table gradient and position gradient agree with the torch reference."""
+    levels, feats, log2, base, finest = layout
+    seed = random.randrange(2**31)
+    grid = _grid(
+        seed,
+        n_levels=levels,
+        n_features=feats,
+        log2_table_size=log2,
+        base_resolution=base,
+        finest_resolution=finest,
+    )
+    assert any(grid.dense) and not all(grid.dense), "layout must mix dense and hashed levels"
+    x = _points(grid, 3000, seed + 1)
+    upstream = torch.randn(
+        x.shape[0], levels * feats, generator=torch.Generator().manual_seed(seed)
+    )
+    want = _run(grid, x, "torch", upstream)
+    got = _run(grid, x, "native", upstream)
+    msg = f"seed={seed} layout={layout}"
+    torch.testing.assert_close(got[0], want[0], atol=1e-6, rtol=1e-5, msg=f"values {msg}")
+    torch.testing.assert_close(got[1], want[1], atol=1e-5, rtol=1e-5, msg=f"d table {msg}")
+    # Position gradients scale with the finest resolution: compare relative to their magnitude.
+    scale = float(want[2].abs().max())
+    torch.testing.assert_close(
+        got[2] / scale, want[2] / scale, atol=2e-6, rtol=0, msg=f"d position {msg}"
+    )
+    outside = ~((x >= 0) & (x <= 1)).all(dim=1)
+    assert outside.any() and not got[0][outside].any(), f"outside points need zeros, {msg}"
+    assert not got[2][outside].any(), f"outside points get no position gradient, {msg}"
+
+
+def test_native_default_layout_and_thread_independence() -> None:
+    """The trainer's 16-level layout; results do not depend on the thread count (bitwise)."""
+    seed = random.randrange(2**31)
+    grid = _grid(seed, log2_table_size=16)
+    x = _points(grid, 4000, seed + 1)
+    upstream = torch.randn(x.shape[0], 32, generator=torch.Generator().manual_seed(seed))
+    want = _run(grid, x, "torch", upstream)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        two = _run(grid, x, "native", upstream)
+        torch.set_num_threads(1)
+        one = _run(grid, x, "native", upstream)
+    finally:
+        torch.set_num_threads(threads)
+    for a, b, name in zip(one, two, ("values", "d table", "d position"), strict=True):
+        assert torch.equal(a, b), f"{name} differ between 1 and 2 threads, seed={seed}"
+    torch.testing.assert_close(two[0], want[0], atol=1e-6, rtol=1e-5, msg=f"seed={seed}")
+    torch.testing.assert_close(two[1], want[1], atol=1e-5, rtol=1e-5, msg=f"seed={seed}")
+    scale = float(want[2].abs().max())
+    torch.testing.assert_close(two[2] / scale, want[2] / scale, atol=2e-6, rtol=0)
+
+
+def test_native_gradients_only_where_asked() -> None:
+    """No position gradient without requires_grad on x; no table gradient for a frozen table."""
+    grid = _grid(0, n_levels=4, log2_table_size=10, finest_resolution=64)
+    grid.backend = "native"
+    x = torch.rand(100, 3, requires_grad=True)
+    grid.embeddings.requires_grad_(False)
+    grid(x).sum().backward()
+    assert x.grad is not None and x.grad.abs().sum() > 0
+    grid.embeddings.requires_grad_(True)
+    x2 = torch.rand(100, 3)
+    grid(x2).sum().backward()
+    assert grid.embeddings.grad is not None and grid.embeddings.grad.abs().sum() > 0
+    assert grid(torch.zeros(0, 3)).shape == (0, grid.output_dim)
+
+
+def test_backend_selection(monkeypatch: pytest.MonkeyPatch) -> None:
+    """float32 CPU → native by default; env var forces torch; float64 falls back; bad values."""
+    grid = _grid(0, n_levels=4, log2_table_size=10, finest_resolution=64)
+    x = torch.rand(10, 3)
+    assert grid.uses_native(x)
+    assert not grid.uses_native(x.double())
+    monkeypatch.setenv("SPARSESPLAT_HASHGRID", "torch")
+    assert not grid.uses_native(x)
+    monkeypatch.setenv("SPARSESPLAT_HASHGRID", "gpu")
+    with pytest.raises(ValueError, match="SPARSESPLAT_HASHGRID"):
+        grid.uses_native(x)
+    monkeypatch.delenv("SPARSESPLAT_HASHGRID")
+    grid.backend = "native"
+    with pytest.raises(ValueError, match="float32"):
+        grid(x.double())
+    with pytest.raises(ValueError, match="backend"):
+        HashGrid(n_levels=2, log2_table_size=8, backend="cuda")
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        grid(torch.rand(4, 2))
