@@ -28,8 +28,10 @@ from sparsesplat.engine.scene import Scene
 class SweepConfig:
     """Plane-sweep settings."""
 
-    depths: int = 64
-    """Number of depth hypotheses (uniform in inverse depth between near and far)."""
+    depths: int = 128
+    """Number of depth hypotheses (uniform in inverse depth between near and far). Held-out
+    warp error relative to a constant depth, mean over the 6 shared scenes: 0.60 with 64,
+    0.55 with 96, 0.53 with 128 (``compare --heldout auto``; cost grows linearly)."""
     window: int = 9
     """ZNCC window side in pixels (odd)."""
     max_pixels: int = 60_000
