@@ -1,4 +1,4 @@
-"""Build (once, cached) and load the native CPU hash-grid extension.
+"""Build (once, cached) and load the native CPU colour-field extension (hash grid, SH encoding).
 
 Same conventions as the rasterizer's loader (engine/raster/build.py): compiled by
 ``torch.utils.cpp_extension.load`` at first use into ``$TORCH_EXTENSIONS_DIR`` (torch's default
@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 SOURCE_DIR = Path(__file__).resolve().parent / "cpu"
 """Folder holding the C++ sources."""
-SOURCES = ("hashgrid.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp")
+SOURCES = ("hashgrid.cpp", "sh.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp")
 """Translation units of the extension (headers: common.h, kernels.h)."""
 EXTENSION_NAME = "sparsesplat_hashgrid_cpu"
 """Module name of the built extension (torch caches builds under this name)."""

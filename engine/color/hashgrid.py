@@ -150,7 +150,7 @@ class HashGrid(nn.Module):
         if x.dim() != 2 or x.shape[-1] != 3:
             raise ValueError(f"HashGrid input: expected shape (N, 3), got {tuple(x.shape)}")
         if self.uses_native(x):
-            from sparsesplat.engine.color.hashgrid_native import encode_native
+            from sparsesplat.engine.color.native import encode_native
 
             return encode_native(x, self.embeddings, self.layout())
         return self.forward_torch(x)

@@ -5,6 +5,14 @@ MLP_s: 32 → 64 → 64 → 65 and MLP_c: 80 → 64 → 3, ReLU between layers, 
 act(h) = sigmoid(h) * 1.002 - 0.001. The density output (channel 0 of MLP_s) is never used by
 the method, so it is not computed here (the 65th output row is kept only so the layer shapes
 match the reference; see dngaussian-method.md §6).
+
+Training path (:meth:`NeuralColorField.forward`): the geometry feature feeds only the colour
+head's first layer, and nothing non-linear sits between them, so
+``W_c1[:, 16:] @ (W_s3[1:] @ h) = (W_c1[:, 16:] @ W_s3[1:]) @ h``: we multiply the two 64x64
+weights once per call instead of running one more (N, 64) x (64, 64) product forward and two
+backward (about a quarter of the MLP work). Same function and same parameters (their gradients
+flow through the product); only float rounding differs. The inference path with cached
+geometry features keeps the layer-by-layer form.
 """
 
 from __future__ import annotations
@@ -14,6 +22,9 @@ from torch import Tensor, nn
 
 from sparsesplat.engine.color.hashgrid import HashGrid
 from sparsesplat.engine.color.sh import sh_basis
+
+_OUT_SCALE = 1 + 2 * 0.001
+_OUT_SHIFT = 0.001
 
 
 class NeuralColorField(nn.Module):
@@ -56,17 +67,44 @@ class NeuralColorField(nn.Module):
                             - bound_w
                         )
 
+    def _encode(self, means: Tensor) -> Tensor:
+        """Hash-grid code of the centres mapped into the grid cube."""
+        return self.grid((means - self.center) / (2 * self.bound) + 0.5)
+
+    def _sh(self, dirs: Tensor) -> Tensor:
+        """16-value SH direction code; the fused native kernel when the grid runs natively."""
+        if self.grid.uses_native(dirs):
+            from sparsesplat.engine.color.native import sh16_native
+
+            return sh16_native(dirs)
+        return sh_basis(dirs, 3)
+
+    def _hidden(self, code: Tensor) -> Tensor:
+        """The sigma MLP's two ReLU layers (the input of its output layer)."""
+        s = self.sigma_mlp
+        h = torch.relu(nn.functional.linear(code, s[0].weight))
+        return torch.relu(nn.functional.linear(h, s[2].weight))
+
     def geo_features(self, means: Tensor) -> Tensor:
         """(N, 3) world centres → (N, geo_dim) geometry features (density channel dropped)."""
-        x = (means - self.center) / (2 * self.bound) + 0.5
-        return self.sigma_mlp(self.grid(x))[:, 1:]
+        # Only rows 1.. of the output layer: the density row is never used.
+        return nn.functional.linear(self._hidden(self._encode(means)), self.sigma_mlp[4].weight[1:])
+
+    def _head(self, pre: Tensor) -> Tensor:
+        """ReLU, the colour MLP's output layer and the scaled sigmoid."""
+        h = nn.functional.linear(torch.relu(pre), self.color_mlp[2].weight)
+        return torch.sigmoid(h) * _OUT_SCALE - _OUT_SHIFT
 
     def colors_from_features(self, geo: Tensor, dirs: Tensor) -> Tensor:
         """Per-view head: (N, geo_dim) features and (N, 3) unit directions → (N, 3) RGB."""
-        h = self.color_mlp(torch.cat([sh_basis(dirs, 3), geo], dim=-1))
-        return torch.sigmoid(h) * (1 + 2 * 0.001) - 0.001
+        w = self.color_mlp[0].weight
+        pre = nn.functional.linear(self._sh(dirs), w[:, :16])
+        return self._head(torch.addmm(pre, geo, w[:, 16:].t()))
 
     def forward(self, means: Tensor, camera_center: Tensor) -> Tensor:
         """Full evaluation for one view (training path; gradients reach means and weights)."""
         dirs = nn.functional.normalize(means - camera_center, dim=-1)
-        return self.colors_from_features(self.geo_features(means), dirs)
+        w = self.color_mlp[0].weight
+        merged = w[:, 16:] @ self.sigma_mlp[4].weight[1:]  # see the module docstring
+        pre = nn.functional.linear(self._sh(dirs), w[:, :16])
+        return self._head(torch.addmm(pre, self._hidden(self._encode(means)), merged.t()))

@@ -36,3 +36,4 @@ struct LevelArgs {
 HG_DECLARE(avx2)
 HG_DECLARE(avx512)
 #undef HG_DECLARE
+

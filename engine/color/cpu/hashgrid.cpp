@@ -1,9 +1,10 @@
 // Native CPU hash-grid encoder: argument checks, the OpenMP loops over levels and point blocks,
 // and the run-time choice of the per-ISA level kernels (kernels.h). The Python side
-// (engine/color/hashgrid_native.py) wraps forward/backward in a torch.autograd.Function.
+// (engine/color/native.py) wraps forward/backward in a torch.autograd.Function.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <omp.h>
+#include <sys/mman.h>
 
 #include <algorithm>
 #include <cstdlib>
@@ -12,6 +13,10 @@
 #include <vector>
 
 #include "common.h"
+
+// Degree-3 SH direction encoding, sh.cpp.
+torch::Tensor sh16_forward(torch::Tensor dirs);
+torch::Tensor sh16_backward(torch::Tensor dirs, torch::Tensor grad);
 
 namespace {
 
@@ -41,6 +46,26 @@ Variant pick_variant() {
 const Variant& variant() {
   static Variant v = pick_variant();
   return v;
+}
+
+// A zero-filled float32 (rows, cols) tensor in fresh anonymous memory backed by transparent huge
+// pages where the kernel allows. The dense table gradient is ~50 MB and is allocated every
+// backward: through malloc that is ~12k page faults plus a memset; here the kernel hands out
+// ~25 zeroed 2 MB pages on first touch (inside the parallel level loop) and no memset is needed.
+// Returns an undefined tensor when mmap fails (the caller then uses torch::zeros).
+torch::Tensor zeroed_huge(int64_t rows, int64_t cols) {
+  constexpr size_t kHuge = size_t(2) << 20;
+  const size_t bytes = size_t(rows) * size_t(cols) * sizeof(float);
+  if (bytes < kHuge) return torch::Tensor();
+  const size_t len = (bytes + kHuge - 1) / kHuge * kHuge + kHuge;  // room to align
+  void* base = mmap(nullptr, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (base == MAP_FAILED) return torch::Tensor();
+  char* aligned = reinterpret_cast<char*>(
+      (reinterpret_cast<uintptr_t>(base) + kHuge - 1) / kHuge * kHuge);
+  madvise(aligned, len - (aligned - static_cast<char*>(base)), MADV_HUGEPAGE);
+  return torch::from_blob(
+      aligned, {rows, cols}, [base, len](void*) { munmap(base, len); },
+      torch::TensorOptions().dtype(torch::kFloat32));
 }
 
 int n_threads() { return std::max(1, at::get_num_threads()); }
@@ -140,7 +165,12 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
     gx_levels = torch::empty({L, N, 3}, x.options());
   }
   // Dense gradient like the reference's; every row is written by the level that owns it.
-  if (need_table) gt = torch::empty_like(table);
+  bool zeroed = false;
+  if (need_table) {
+    gt = zeroed_huge(table.size(0), F);
+    zeroed = gt.defined();
+    if (!zeroed) gt = torch::empty_like(table);
+  }
   const LevelFn bwd = variant().bwd;
   const float* px = x.data_ptr<float>();
   const float* pt = table.data_ptr<float>();
@@ -153,7 +183,7 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
 #pragma omp parallel for schedule(dynamic, 1) num_threads(n_threads())
     for (int64_t l = 0; l < L; ++l) {
       const Level& lv = levels[l];
-      if (pgt) std::memset(pgt + lv.offset * F, 0, sizeof(float) * lv.size * F);
+      if (pgt && !zeroed) std::memset(pgt + lv.offset * F, 0, sizeof(float) * lv.size * F);
       LevelArgs a{};
       a.x = px;
       a.table = pt;
@@ -195,5 +225,7 @@ std::string variant_name() { return variant().name; }
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "Hash-grid encoding (N, 3) -> (N, levels * features)");
   m.def("backward", &backward, "Gradients w.r.t. the inputs and the (dense) table");
+  m.def("sh16_forward", &sh16_forward, "Degree-3 SH basis (N, 3) unit dirs -> (N, 16)");
+  m.def("sh16_backward", &sh16_backward, "Gradient of sh16_forward w.r.t. the directions");
   m.def("variant", &variant_name, "Kernel instruction-set variant chosen for this CPU");
 }

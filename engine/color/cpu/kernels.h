@@ -67,8 +67,10 @@ static inline void corners(const float* __restrict x, const Level& lv, int64_t b
       b.idx[c][i] = dense ? v0 + v1 * s1 + v2 * s2 : v0 ^ (v1 * kPrime1) ^ (v2 * kPrime2);
     }
   }
-  // Fold into the level: a mask for power-of-two sizes (every hashed level of the default
-  // layout), a true modulo otherwise (dense indices are already < size; kept for exactness).
+  // Fold into the level: dense indices are already < size (make_levels checks stride^3 <= size
+  // and the largest corner index is stride^3 - 1), hashed ones take a mask for power-of-two
+  // sizes (every hashed level of the grid's layout) and a true modulo otherwise.
+  if (dense) return;
   if (lv.mask) {
     for (int c = 0; c < 8; ++c)
       for (int i = 0; i < n; ++i) b.idx[c][i] &= lv.mask;
@@ -78,9 +80,6 @@ static inline void corners(const float* __restrict x, const Level& lv, int64_t b
   }
 }
 
-// Phase 2: copy the 8 corner rows of every point of the block into structure-of-arrays form.
-// A tight loop of independent loads, so many cache misses are in flight at once (the hashed
-// levels' tables are megabytes); the arithmetic after it then runs on contiguous vectors.
 template <int F>
 static inline void gather(const float* __restrict tab, const Block& b, int n,
                           float (&rows)[8][F][kBlock]) {
@@ -92,15 +91,48 @@ static inline void gather(const float* __restrict tab, const Block& b, int n,
   }
 }
 
+// Software prefetch of a block's rows: the next block's corners are computed and prefetched
+// before the current block is gathered, so its cache misses overlap this block's work.
+template <int F>
+static inline void prefetch(const float* tab, const Block& b, int n) {
+  if (!tab) return;
+  for (int c = 0; c < 8; ++c)
+    for (int i = 0; i < n; ++i) __builtin_prefetch(tab + (int64_t)b.idx[c][i] * F, 0, 3);
+}
+
+// Runs body(block, start, n) over [begin, end) in blocks, one block of corners ahead.
+template <int F, typename Body>
+static inline void for_blocks(const LevelArgs& a, const float* tab, const float* tab2,
+                              Body body) {
+  Block bufs[2];
+  int cur = 0;
+  int64_t start = a.begin;
+  if (start >= a.end) return;
+  int n = (int)std::min<int64_t>(kBlock, a.end - start);
+  corners(a.x, a.level, start, n, bufs[cur]);
+  while (true) {
+    const int64_t next = start + n;
+    int n_next = 0;
+    if (next < a.end) {
+      n_next = (int)std::min<int64_t>(kBlock, a.end - next);
+      corners(a.x, a.level, next, n_next, bufs[cur ^ 1]);
+      prefetch<F>(tab, bufs[cur ^ 1], n_next);
+      prefetch<F>(tab2, bufs[cur ^ 1], n_next);
+    }
+    body(bufs[cur], start, n);
+    if (next >= a.end) break;
+    start = next;
+    n = n_next;
+    cur ^= 1;
+  }
+}
+
 template <int F>
 static void forward_impl(const LevelArgs& a) {
   const float* __restrict tab = a.table + a.level.offset * F;
-  Block b;
   alignas(64) float rows[8][F][kBlock];
   alignas(64) float acc[F][kBlock];
-  for (int64_t start = a.begin; start < a.end; start += kBlock) {
-    const int n = (int)std::min<int64_t>(kBlock, a.end - start);
-    corners(a.x, a.level, start, n, b);
+  for_blocks<F>(a, tab, nullptr, [&](const Block& b, int64_t start, int n) {
     gather<F>(tab, b, n, rows);
     for (int f = 0; f < F; ++f) {
       for (int i = 0; i < n; ++i) acc[f][i] = 0.f;
@@ -112,7 +144,7 @@ static void forward_impl(const LevelArgs& a) {
       float* o = a.out + (start + i) * a.out_stride + a.col;
       for (int f = 0; f < F; ++f) o[f] = acc[f][i];
     }
-  }
+  });
 }
 
 template <int F>
@@ -120,14 +152,12 @@ static void backward_impl(const LevelArgs& a) {
   const float* __restrict tab = a.table + a.level.offset * F;
   float* __restrict gtab = a.grad_table ? a.grad_table + a.level.offset * F : nullptr;
   const float scale = a.level.scale;
-  Block b;
   alignas(64) float rows[8][F][kBlock];
   alignas(64) float g[F][kBlock];
   alignas(64) float d[3][kBlock];
   alignas(64) float s[kBlock];
-  for (int64_t start = a.begin; start < a.end; start += kBlock) {
-    const int n = (int)std::min<int64_t>(kBlock, a.end - start);
-    corners(a.x, a.level, start, n, b);
+  // Prefetch the table rows only when they are read (position gradient), and the gradient rows.
+  for_blocks<F>(a, a.grad_x ? tab : nullptr, gtab, [&](const Block& b, int64_t start, int n) {
     // Outside points get zero features: zero upstream gradient, hence no contribution at all.
     for (int i = 0; i < n; ++i) {
       const float* go = a.grad_out + (start + i) * a.out_stride + a.col;
@@ -169,7 +199,7 @@ static void backward_impl(const LevelArgs& a) {
         gx[2] = d[2][i] * scale;
       }
     }
-  }
+  });
 }
 
 void forward_level(const LevelArgs& a, int F) {

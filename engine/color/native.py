@@ -1,8 +1,9 @@
-"""Autograd wrapper of the native CPU hash-grid kernels (engine/color/cpu/).
+"""Autograd wrappers of the native CPU colour-field kernels (engine/color/cpu/).
 
-The forward saves only the inputs and the table; the backward recomputes the corner indices and
-weights (cheap next to the gathers) and returns the position gradient and a dense table gradient,
-each only when autograd asks for it.
+Hash grid: the forward saves only the inputs and the table; the backward recomputes the corner
+indices and weights (cheap next to the gathers) and returns the position gradient and a dense
+table gradient, each only when autograd asks for it. SH: the 16-value direction encoding and its
+analytic gradient, each one fused pass.
 """
 
 from __future__ import annotations
@@ -43,3 +44,20 @@ class _Encode(torch.autograd.Function):
 def encode_native(x: Tensor, table: Tensor, layout: Layout) -> Tensor:
     """(N, 3) float32 CPU points → (N, levels * features) with the native kernels."""
     return _Encode.apply(x.contiguous(), table.contiguous(), layout)
+
+
+class _SH16(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, dirs: Tensor) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(dirs)
+        return load_extension().sh16_forward(dirs)
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> Tensor:  # type: ignore[override]
+        (dirs,) = ctx.saved_tensors
+        return load_extension().sh16_backward(dirs, grad.contiguous())
+
+
+def sh16_native(dirs: Tensor) -> Tensor:
+    """(N, 3) float32 CPU unit directions → (N, 16) degree-3 real SH basis (as ``sh_basis``)."""
+    return _SH16.apply(dirs.contiguous())
