@@ -40,12 +40,13 @@ class SweepConfig:
     9 px window gave lower warp error on twice the confident pixels of full 400x300 with a
     7 px window, in half the time -- wide baselines favour larger effective windows."""
     temperature: float = 0.05
-    """Softmax temperature on the cost curve for the peak-mass confidence."""
+    """Softmax temperature on the cost curve for the peak-mass confidence (the mass within
+    one 64-hypothesis step of the winner)."""
     min_texture: float = 0.01
     """Grey-level std in the window below which a pixel is untextured (confidence 0)."""
     consistency: float = 1.5
-    """Cross-view check tolerance in inverse-depth hypothesis steps (scale-free, matches the
-    sweep's own resolution); 0 disables the check."""
+    """Cross-view check tolerance in inverse-depth steps of a 64-hypothesis sweep over the
+    same range (scale-free); 0 disables the check."""
     max_sources: int = 4
     """Each reference view is matched against at most this many other training views, the
     ones whose optical axes are closest in angle (keeps 8+ views tractable)."""
@@ -60,6 +61,17 @@ class SweepConfig:
     """Override of the scene's near bound."""
     far: float | None = None
     """Override of the scene's far bound."""
+
+
+REFERENCE_DEPTHS = 64
+"""The hypothesis count the confidence window and the consistency tolerance are defined at:
+with more hypotheses both widen in steps so they keep the same inverse-depth width (finer
+sampling must sharpen the depth, not lower the confidence)."""
+
+
+def _unit_steps(depths: int) -> int:
+    """Hypothesis steps per reference step (1 at 64 hypotheses, 2 at 128, ...)."""
+    return max(1, round(depths / REFERENCE_DEPTHS))
 
 
 def _grey(image: Tensor) -> Tensor:
@@ -174,7 +186,7 @@ def sweep_view(
     # Confidence: softmax mass of the cost curve within +-1 hypothesis of the winner ...
     prob = torch.softmax(-agg / cfg.temperature, dim=0)
     idx = torch.arange(n_d, device=dev).view(-1, 1, 1)
-    peak = (prob * ((idx - best[None]).abs() <= 1)).sum(0)
+    peak = (prob * ((idx - best[None]).abs() <= _unit_steps(n_d))).sum(0)
     # ... times the match quality (ZNCC 1 -> 1, ZNCC <= 0 -> 0) ...
     quality = (1.0 - c0).clamp(0, 1)
     # ... zero for untextured reference windows and winners on the range boundary.
@@ -262,7 +274,8 @@ def plane_sweep_priors(scene: Scene, cfg: SweepConfig | None = None) -> list[Pri
             confs.append(c)
         if cfg.consistency > 0:
             step = float((inv_depths[0] - inv_depths[-1]).abs()) / (cfg.depths - 1)
-            checks = _consistency(depths, cams, cfg.consistency * step)
+            tol = cfg.consistency * step * _unit_steps(cfg.depths)
+            checks = _consistency(depths, cams, tol)
             confs = [c * m for c, m in zip(confs, checks, strict=True)]
     out = []
     for view, d, c in zip(scene.train, depths, confs, strict=True):
