@@ -5,6 +5,10 @@ A synthetic 3-view scene (random Gaussian blob rendered as ground truth) and a m
 stages are: the two depth passes (render + loss + backward + Adam step), the neural field forward
 and backward, the photometric render forward, its loss, the raster+loss backward, densification
 bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
+
+A second table times the neural colour field alone (forward, and backward to the centres and all
+field parameters) with the native kernels and with the torch reference hash grid + SH
+(``--field-backends``), at the same sizes.
 """
 
 from __future__ import annotations
@@ -40,19 +44,61 @@ def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dic
     return row
 
 
+def measure_field(n: int, backend: str, iterations: int) -> dict[str, float | int | str]:
+    """Mean seconds of the colour field's forward and backward for ``n`` random centres."""
+    import torch
+
+    from sparsesplat.engine.color.models import NeuralColor
+
+    g = torch.Generator().manual_seed(0)
+    points = torch.rand(n, 3, generator=g) * 4 - 2
+    color = NeuralColor.create(points, g)
+    color.field.grid.backend = backend
+    means = points.clone().requires_grad_(True)
+    camera = torch.tensor([0.1, 0.2, -5.0])
+    upstream = torch.rand(n, 3, generator=g) * 1e-3
+    fwd = bwd = 0.0
+    for i in range(iterations + 1):  # the first is a warm-up (extension load, allocations)
+        means.grad = None
+        color.field.zero_grad(set_to_none=True)
+        t0 = time.perf_counter()
+        out = color.field(means, camera)
+        t1 = time.perf_counter()
+        out.backward(upstream)
+        t2 = time.perf_counter()
+        if i:
+            fwd, bwd = fwd + (t1 - t0), bwd + (t2 - t1)
+    return {"gaussians": n, "backend": backend, "fwd_s": fwd / iterations,
+            "bwd_s": bwd / iterations}  # fmt: skip
+
+
 def main() -> None:
     """Print and save the table."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument("--sizes", type=int, nargs="+", default=[20_000, 50_000])
+    parser.add_argument(
+        "--field-backends", nargs="*", default=["native", "torch"], choices=["native", "torch"],
+        help="hash-grid backends for the field-only table (none: skip it)",
+    )  # fmt: skip
+    parser.add_argument("--no-iteration", action="store_true", help="only the field table")
     args = parser.parse_args()
+    print(machine_info())
+    if args.field_backends:
+        field_rows = [
+            measure_field(n, b, args.iterations) for n in args.sizes for b in args.field_backends
+        ]
+        for r in field_rows:
+            r["fwd_s"], r["bwd_s"] = round(float(r["fwd_s"]), 4), round(float(r["bwd_s"]), 4)
+        write_results("iteration_field", field_rows, ["gaussians", "backend", "fwd_s", "bwd_s"])
+    if args.no_iteration:
+        return
     rows = []
     for n in args.sizes:
         r = measure(n, args.iterations)
         rows.append({k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()})
     cols = ["gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd", "photo_render",
             "losses", "photo_backward", "neural_bwd", "optimizer", "setup"]  # fmt: skip
-    print(machine_info())
     write_results("iteration", rows, cols)
 
 

@@ -91,16 +91,40 @@ static inline void gather(const float* __restrict tab, const Block& b, int n,
   }
 }
 
-// Software prefetch of a block's rows: the next block's corners are computed and prefetched
-// before the current block is gathered, so its cache misses overlap this block's work.
+// gather() for the points flagged live; the others get zero rows (their gradient is zero).
 template <int F>
-static inline void prefetch(const float* tab, const Block& b, int n) {
-  if (!tab) return;
-  for (int c = 0; c < 8; ++c)
-    for (int i = 0; i < n; ++i) __builtin_prefetch(tab + (int64_t)b.idx[c][i] * F, 0, 3);
+static inline void gather_live(const float* __restrict tab, const Block& b, int n,
+                               const bool* live, float (&rows)[8][F][kBlock]) {
+  for (int c = 0; c < 8; ++c) {
+    for (int i = 0; i < n; ++i) {
+      const float* r = tab + (int64_t)b.idx[c][i] * F;
+      for (int f = 0; f < F; ++f) rows[c][f][i] = live[i] ? r[f] : 0.f;
+    }
+  }
 }
 
-// Runs body(block, start, n) over [begin, end) in blocks, one block of corners ahead.
+template <int F>
+static inline void prefetch(const float* tab, const float* tab2, const Block& b, int64_t start,
+                            int n, const LevelArgs& a) {
+  for (int i = 0; i < n; ++i) {
+    if (!b.inside[i]) continue;
+    if (a.grad_out) {  // backward: rows of points with a zero upstream gradient are not touched
+      const float* go = a.grad_out + (start + i) * a.out_stride + a.col;
+      bool any = false;
+      for (int f = 0; f < F; ++f) any |= go[f] != 0.f;
+      if (!any) continue;
+    }
+    for (int c = 0; c < 8; ++c) {
+      const int64_t off = (int64_t)b.idx[c][i] * F;
+      if (tab) __builtin_prefetch(tab + off, 0, 3);
+      if (tab2) __builtin_prefetch(tab2 + off, 1, 3);
+    }
+  }
+}
+
+// Runs body(block, start, n) over [begin, end) in blocks, one block of corners ahead: the next
+// block's corners are computed and their rows prefetched (from tab and tab2, either may be null)
+// before the current block is processed, so its cache misses overlap this block's work.
 template <int F, typename Body>
 static inline void for_blocks(const LevelArgs& a, const float* tab, const float* tab2,
                               Body body) {
@@ -116,8 +140,7 @@ static inline void for_blocks(const LevelArgs& a, const float* tab, const float*
     if (next < a.end) {
       n_next = (int)std::min<int64_t>(kBlock, a.end - next);
       corners(a.x, a.level, next, n_next, bufs[cur ^ 1]);
-      prefetch<F>(tab, bufs[cur ^ 1], n_next);
-      prefetch<F>(tab2, bufs[cur ^ 1], n_next);
+      prefetch<F>(tab, tab2, bufs[cur ^ 1], next, n_next, a);
     }
     body(bufs[cur], start, n);
     if (next >= a.end) break;
@@ -156,17 +179,25 @@ static void backward_impl(const LevelArgs& a) {
   alignas(64) float g[F][kBlock];
   alignas(64) float d[3][kBlock];
   alignas(64) float s[kBlock];
+  bool live[kBlock];
   // Prefetch the table rows only when they are read (position gradient), and the gradient rows.
   for_blocks<F>(a, a.grad_x ? tab : nullptr, gtab, [&](const Block& b, int64_t start, int n) {
     // Outside points get zero features: zero upstream gradient, hence no contribution at all.
+    // Points whose upstream gradient is exactly zero (Gaussians the view did not render) add
+    // exact zeros, so they are skipped too: no scatter, no gather.
     for (int i = 0; i < n; ++i) {
       const float* go = a.grad_out + (start + i) * a.out_stride + a.col;
-      for (int f = 0; f < F; ++f) g[f][i] = b.inside[i] ? go[f] : 0.f;
+      bool any = false;
+      for (int f = 0; f < F; ++f) {
+        g[f][i] = b.inside[i] ? go[f] : 0.f;
+        any |= g[f][i] != 0.f;
+      }
+      live[i] = any;
     }
     if (gtab) {
       for (int c = 0; c < 8; ++c) {
         for (int i = 0; i < n; ++i) {
-          if (!b.inside[i]) continue;
+          if (!live[i]) continue;
           float* r = gtab + (int64_t)b.idx[c][i] * F;
           const float w = b.w[c][i];
           for (int f = 0; f < F; ++f) r[f] += w * g[f][i];
@@ -175,7 +206,7 @@ static void backward_impl(const LevelArgs& a) {
     }
     if (a.grad_x) {
       // d out / d frac_k = sum_c <g, row_c> * (+-1) * (weights of the two other axes).
-      gather<F>(tab, b, n, rows);
+      gather_live<F>(tab, b, n, live, rows);
       for (int k = 0; k < 3; ++k)
         for (int i = 0; i < n; ++i) d[k][i] = 0.f;
       for (int c = 0; c < 8; ++c) {

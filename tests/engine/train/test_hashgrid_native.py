@@ -72,9 +72,11 @@ def test_native_matches_torch(layout: tuple[int, int, int, int, int]) -> None:
     )
     assert any(grid.dense) and not all(grid.dense), "layout must mix dense and hashed levels"
     x = _points(grid, 3000, seed + 1)
-    upstream = torch.randn(
-        x.shape[0], levels * feats, generator=torch.Generator().manual_seed(seed)
-    )
+    gen = torch.Generator().manual_seed(seed)
+    upstream = torch.randn(x.shape[0], levels * feats, generator=gen)
+    # Unrendered Gaussians: whole rows of exact zeros; and single zero entries.
+    upstream[torch.rand(x.shape[0], generator=gen) < 0.3] = 0.0
+    upstream[torch.rand(upstream.shape, generator=gen) < 0.1] = 0.0
     want = _run(grid, x, "torch", upstream)
     got = _run(grid, x, "native", upstream)
     msg = f"seed={seed} layout={layout}"
