@@ -60,6 +60,9 @@ class CameraFrame(BaseModel):
     """Image height in pixels; checked against the image when given."""
     depth: str | None = None
     """Optional depth map file (float ``.npy`` in scene units or 16-bit ``.png``)."""
+    depth_scale: float | None = Field(default=None, gt=0)
+    """Divisor turning integer depth PNG values into scene units (e.g. 1000 for millimetres);
+    overrides the file-level ``depth_scale``."""
     split: Split = Split.train
     """Whether the frame is a training or a held-out view."""
 
@@ -90,6 +93,8 @@ class CamerasFile(BaseModel):
     """Camera axes the matrices use."""
     pose: PoseDirection = PoseDirection.camera_to_world
     """Direction of every matrix."""
+    depth_scale: float = Field(default=1.0, gt=0)
+    """Divisor turning integer depth PNG values into scene units, for every frame."""
     frames: list[CameraFrame] = Field(min_length=1)
     """The images, in any order."""
 

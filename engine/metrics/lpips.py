@@ -62,7 +62,11 @@ class LPIPS(nn.Module):
         state = torch.load(
             resolve_weight(VGG_FILE, models_dir), map_location="cpu", weights_only=True
         )
-        self.features.load_state_dict({k.removeprefix("features."): v for k, v in state.items()})
+        # Keep only the conv stack: a full torchvision checkpoint (what `sparsesplat
+        # fetch-weights` downloads) also carries the classifier, which LPIPS does not use.
+        self.features.load_state_dict(
+            {k.removeprefix("features."): v for k, v in state.items() if k.startswith("features.")}
+        )
         lin = torch.load(
             resolve_weight(LIN_FILE, models_dir), map_location="cpu", weights_only=True
         )

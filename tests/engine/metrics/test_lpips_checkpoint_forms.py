@@ -1,0 +1,28 @@
+"""LPIPS loads both the features-only file and a full torchvision VGG16 checkpoint
+(what `sparsesplat fetch-weights` downloads), with identical results."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from sparsesplat.engine.metrics.lpips import LIN_FILE, LPIPS, VGG_FILE
+
+
+def test_full_torchvision_checkpoint_loads(models_dir: Path, tmp_path: Path) -> None:
+    if not (models_dir / VGG_FILE).exists() or not (models_dir / LIN_FILE).exists():
+        pytest.skip(f"LPIPS weights not in {models_dir}")
+    state = torch.load(models_dir / VGG_FILE, map_location="cpu", weights_only=True)
+    state["classifier.0.weight"] = torch.zeros(8, 8)  # what a full checkpoint adds
+    state["classifier.0.bias"] = torch.zeros(8)
+    torch.save(state, tmp_path / VGG_FILE)
+    shutil.copy(models_dir / LIN_FILE, tmp_path / LIN_FILE)
+    seed = int(torch.randint(0, 2**31 - 1, ()).item())
+    g = torch.Generator().manual_seed(seed)
+    a, b = torch.rand(2, 1, 3, 40, 48, generator=g)
+    full, features_only = LPIPS(tmp_path), LPIPS(models_dir)
+    assert float(full(a, b)) == pytest.approx(float(features_only(a, b)), abs=0), f"seed {seed}"
+    assert float(full(a, b)) > 0, f"seed {seed}"
