@@ -19,7 +19,7 @@ class WeightsNotFound(EngineError, FileNotFoundError):
 
 
 def default_models_dir() -> Path:
-    """The models directory: ``$SPARSESPLAT_MODELS_DIR``, else ``$XDG_CACHE_HOME/sparsesplat/models``."""
+    """``$SPARSESPLAT_MODELS_DIR``, else ``$XDG_CACHE_HOME/sparsesplat/models``."""
     explicit = os.environ.get(MODELS_DIR_ENV)
     if explicit:
         return Path(explicit).expanduser()
@@ -36,5 +36,6 @@ def resolve_weight(filename: str, models_dir: Path | None = None) -> Path:
             return candidate
     raise WeightsNotFound(
         f"weights file {filename!r} not found in {directory} (models directory, set with "
-        f"{MODELS_DIR_ENV}); run `sparsesplat fetch-weights` where a network exists, or copy it there"
+        f"{MODELS_DIR_ENV}); run `sparsesplat fetch-weights` where a network exists, "
+        "or copy it there"
     )
