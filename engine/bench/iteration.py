@@ -88,8 +88,8 @@ def main() -> None:
         field_rows = [
             measure_field(n, b, args.iterations) for n in args.sizes for b in args.field_backends
         ]
-        for r in field_rows:
-            r["fwd_s"], r["bwd_s"] = round(float(r["fwd_s"]), 4), round(float(r["bwd_s"]), 4)
+        for fr in field_rows:
+            fr["fwd_s"], fr["bwd_s"] = round(float(fr["fwd_s"]), 4), round(float(fr["bwd_s"]), 4)
         write_results("iteration_field", field_rows, ["gaussians", "backend", "fwd_s", "bwd_s"])
     if args.no_iteration:
         return

@@ -21,7 +21,7 @@ Layout = tuple[list[float], list[int], list[int], list[int], list[bool]]
 
 class _Encode(torch.autograd.Function):
     @staticmethod
-    def forward(ctx: Any, x: Tensor, table: Tensor, layout: Layout) -> Tensor:  # type: ignore[override]
+    def forward(ctx: Any, x: Tensor, table: Tensor, layout: Layout) -> Tensor:
         ext = load_extension()
         out = ext.forward(x, table, *layout)
         ctx.save_for_backward(x, table)
@@ -29,7 +29,7 @@ class _Encode(torch.autograd.Function):
         return out
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None]:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None]:
         x, table = ctx.saved_tensors
         need_x, need_table = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if not (need_x or need_table):
@@ -48,12 +48,12 @@ def encode_native(x: Tensor, table: Tensor, layout: Layout) -> Tensor:
 
 class _SH16(torch.autograd.Function):
     @staticmethod
-    def forward(ctx: Any, dirs: Tensor) -> Tensor:  # type: ignore[override]
+    def forward(ctx: Any, dirs: Tensor) -> Tensor:
         ctx.save_for_backward(dirs)
         return load_extension().sh16_forward(dirs)
 
     @staticmethod
-    def backward(ctx: Any, grad: Tensor) -> Tensor:  # type: ignore[override]
+    def backward(ctx: Any, grad: Tensor) -> Tensor:
         (dirs,) = ctx.saved_tensors
         return load_extension().sh16_backward(dirs, grad.contiguous())
 

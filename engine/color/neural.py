@@ -17,6 +17,8 @@ geometry features keeps the layer-by-layer form.
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor, nn
 
@@ -27,8 +29,18 @@ _OUT_SCALE = 1 + 2 * 0.001
 _OUT_SHIFT = 0.001
 
 
+def _weight(seq: nn.Sequential, i: int) -> Tensor:
+    """Weight of the i-th layer of ``seq`` (a bias-free nn.Linear)."""
+    return cast(nn.Linear, seq[i]).weight
+
+
 class NeuralColorField(nn.Module):
     """Colour as a function of Gaussian centre and view direction."""
+
+    center: Tensor
+    """(3,) centre of the grid cube (buffer)."""
+    bound: Tensor
+    """Half-width of the grid cube (scalar buffer)."""
 
     def __init__(
         self,
@@ -82,29 +94,31 @@ class NeuralColorField(nn.Module):
     def _hidden(self, code: Tensor) -> Tensor:
         """The sigma MLP's two ReLU layers (the input of its output layer)."""
         s = self.sigma_mlp
-        h = torch.relu(nn.functional.linear(code, s[0].weight))
-        return torch.relu(nn.functional.linear(h, s[2].weight))
+        h = torch.relu(nn.functional.linear(code, _weight(s, 0)))
+        return torch.relu(nn.functional.linear(h, _weight(s, 2)))
 
     def geo_features(self, means: Tensor) -> Tensor:
         """(N, 3) world centres → (N, geo_dim) geometry features (density channel dropped)."""
         # Only rows 1.. of the output layer: the density row is never used.
-        return nn.functional.linear(self._hidden(self._encode(means)), self.sigma_mlp[4].weight[1:])
+        return nn.functional.linear(
+            self._hidden(self._encode(means)), _weight(self.sigma_mlp, 4)[1:]
+        )
 
     def _head(self, pre: Tensor) -> Tensor:
         """ReLU, the colour MLP's output layer and the scaled sigmoid."""
-        h = nn.functional.linear(torch.relu(pre), self.color_mlp[2].weight)
+        h = nn.functional.linear(torch.relu(pre), _weight(self.color_mlp, 2))
         return torch.sigmoid(h) * _OUT_SCALE - _OUT_SHIFT
 
     def colors_from_features(self, geo: Tensor, dirs: Tensor) -> Tensor:
         """Per-view head: (N, geo_dim) features and (N, 3) unit directions → (N, 3) RGB."""
-        w = self.color_mlp[0].weight
+        w = _weight(self.color_mlp, 0)
         pre = nn.functional.linear(self._sh(dirs), w[:, :16])
         return self._head(torch.addmm(pre, geo, w[:, 16:].t()))
 
     def forward(self, means: Tensor, camera_center: Tensor) -> Tensor:
         """Full evaluation for one view (training path; gradients reach means and weights)."""
         dirs = nn.functional.normalize(means - camera_center, dim=-1)
-        w = self.color_mlp[0].weight
-        merged = w[:, 16:] @ self.sigma_mlp[4].weight[1:]  # see the module docstring
+        w = _weight(self.color_mlp, 0)
+        merged = w[:, 16:] @ _weight(self.sigma_mlp, 4)[1:]  # see the module docstring
         pre = nn.functional.linear(self._sh(dirs), w[:, :16])
         return self._head(torch.addmm(pre, self._hidden(self._encode(means)), merged.t()))
