@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 from sparsesplat.engine.color.build import load_extension
 
@@ -29,6 +30,7 @@ class _Encode(torch.autograd.Function):
         return out
 
     @staticmethod
+    @once_differentiable
     def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None]:
         x, table = ctx.saved_tensors
         need_x, need_table = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
@@ -53,6 +55,7 @@ class _SH16(torch.autograd.Function):
         return load_extension().sh16_forward(dirs)
 
     @staticmethod
+    @once_differentiable
     def backward(ctx: Any, grad: Tensor) -> Tensor:
         (dirs,) = ctx.saved_tensors
         return load_extension().sh16_backward(dirs, grad.contiguous())
