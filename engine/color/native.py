@@ -1,8 +1,10 @@
 """Autograd wrappers of the native CPU colour-field kernels (engine/color/cpu/).
 
-Hash grid: the forward saves only the inputs and the table; the backward recomputes the corner
-indices and weights (cheap next to the gathers) and returns the position gradient and a dense
-table gradient, each only when autograd asks for it. SH: the 16-value direction encoding and its
+Hash grid: the forward saves the inputs, the table and, when the inputs need a gradient, the
+Jacobian d out / d x (N, levels * features, 3) it computes from the rows it gathers anyway; the
+backward recomputes the corner indices and weights (cheap next to the memory traffic), scatters
+the dense table gradient and contracts the upstream gradient with the Jacobian, each only when
+autograd asks for it. SH: the 16-value direction encoding and its
 analytic gradient, each one fused pass.
 """
 
@@ -24,21 +26,24 @@ class _Encode(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, x: Tensor, table: Tensor, layout: Layout) -> Tensor:
         ext = load_extension()
-        out = ext.forward(x, table, *layout)
-        ctx.save_for_backward(x, table)
+        # Training asks for the position gradient: the forward then also writes d out / d x
+        # from the rows it gathers anyway, and the backward needs no second gather for it.
+        need_jac = bool(ctx.needs_input_grad[0])
+        out, jac = ext.forward(x, table, *layout, need_jac)
+        ctx.save_for_backward(x, table, jac)
         ctx.layout = layout
         return out
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None]:
-        x, table = ctx.saved_tensors
+        x, table, jac = ctx.saved_tensors
         need_x, need_table = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         if not (need_x or need_table):
             return None, None, None
         ext = load_extension()
         gx, gt = ext.backward(
-            x, table, grad.contiguous(), *ctx.layout, bool(need_x), bool(need_table)
+            x, table, grad.contiguous(), *ctx.layout, bool(need_x), bool(need_table), jac
         )
         return gx, gt, None
 

@@ -111,9 +111,11 @@ std::vector<Level> make_levels(const std::vector<double>& scales,
   return out;
 }
 
-torch::Tensor forward(torch::Tensor x, torch::Tensor table, std::vector<double> scales,
-                      std::vector<int64_t> sizes, std::vector<int64_t> strides,
-                      std::vector<int64_t> offsets, std::vector<bool> dense) {
+// Returns (out, jacobian d out / d x of shape (N, L * F, 3) when need_jac, else undefined).
+std::vector<torch::Tensor> forward(torch::Tensor x, torch::Tensor table,
+                                   std::vector<double> scales, std::vector<int64_t> sizes,
+                                   std::vector<int64_t> strides, std::vector<int64_t> offsets,
+                                   std::vector<bool> dense, bool need_jac) {
   check_tensor(x, "x", 3);
   TORCH_CHECK(table.dim() == 2, "embeddings: expected a 2-D table");
   const int F = (int)table.size(1);
@@ -123,12 +125,15 @@ torch::Tensor forward(torch::Tensor x, torch::Tensor table, std::vector<double> 
   const auto levels = make_levels(scales, sizes, strides, offsets, dense, table.size(0));
   const int64_t N = x.size(0), L = (int64_t)levels.size();
   auto out = torch::empty({N, L * F}, x.options());
-  if (N == 0 || L == 0) return out;
+  torch::Tensor jac;
+  if (need_jac) jac = torch::empty({N, L * F, 3}, x.options());
+  if (N == 0 || L == 0) return {out, jac};
   const int64_t blocks = (N + kPointsPerTask - 1) / kPointsPerTask;
   const LevelFn fwd = variant().fwd;
   const float* px = x.data_ptr<float>();
   const float* pt = table.data_ptr<float>();
   float* po = out.data_ptr<float>();
+  float* pj = need_jac ? jac.data_ptr<float>() : nullptr;
   // Task t = (level t / blocks, block t % blocks): threads sweep one level's table together.
 #pragma omp parallel for schedule(dynamic, 1) num_threads(n_threads())
   for (int64_t t = 0; t < L * blocks; ++t) {
@@ -142,16 +147,18 @@ torch::Tensor forward(torch::Tensor x, torch::Tensor table, std::vector<double> 
     a.out = po;
     a.out_stride = L * F;
     a.col = l * F;
+    a.jac = pj;
     fwd(a, F);
   }
-  return out;
+  return {out, jac};
 }
 
 // Returns (grad_x or an empty tensor, grad_table or an empty tensor).
 std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch::Tensor grad_out,
                                     std::vector<double> scales, std::vector<int64_t> sizes,
                                     std::vector<int64_t> strides, std::vector<int64_t> offsets,
-                                    std::vector<bool> dense, bool need_x, bool need_table) {
+                                    std::vector<bool> dense, bool need_x, bool need_table,
+                                    c10::optional<torch::Tensor> jac_opt) {
   check_tensor(x, "x", 3);
   const int F = (int)table.size(1);
   check_tensor(table, "embeddings", F);
@@ -160,9 +167,18 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
   check_tensor(grad_out, "grad_out", L * F);
   TORCH_CHECK(grad_out.size(0) == N, "grad_out: expected ", N, " rows, got ", grad_out.size(0));
   torch::Tensor gx, gx_levels, gt;
+  // With the forward's Jacobian the position gradient is a streaming contraction; without it
+  // the level kernels recompute it from the table (one gather per corner).
+  const bool use_jac = need_x && jac_opt.has_value() && jac_opt->defined();
+  if (use_jac) {
+    TORCH_CHECK(jac_opt->is_contiguous() && jac_opt->scalar_type() == torch::kFloat32 &&
+                    jac_opt->dim() == 3 && jac_opt->size(0) == N && jac_opt->size(1) == L * F &&
+                    jac_opt->size(2) == 3,
+                "jac: expected a contiguous float32 (N, L * F, 3) tensor");
+  }
   if (need_x) {
     gx = torch::empty({N, 3}, x.options());
-    gx_levels = torch::empty({L, N, 3}, x.options());
+    if (!use_jac) gx_levels = torch::empty({L, N, 3}, x.options());
   }
   // Dense gradient like the reference's; every row is written by the level that owns it.
   bool zeroed = false;
@@ -176,8 +192,8 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
   const float* pt = table.data_ptr<float>();
   const float* pg = grad_out.data_ptr<float>();
   float* pgt = need_table ? gt.data_ptr<float>() : nullptr;
-  float* pgl = need_x ? gx_levels.data_ptr<float>() : nullptr;
-  if (N > 0 && L > 0 && (need_x || need_table)) {
+  float* pgl = need_x && !use_jac ? gx_levels.data_ptr<float>() : nullptr;
+  if (N > 0 && L > 0 && (pgl || need_table)) {
     // One level per task: the level's gradient rows have a single writer (no atomics) and are
     // summed in point order, so the result does not depend on the thread count.
 #pragma omp parallel for schedule(dynamic, 1) num_threads(n_threads())
@@ -200,7 +216,27 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
   } else if (pgt) {
     gt.zero_();
   }
-  if (need_x) {
+  if (use_jac) {
+    // dx_i = sum_j g_ij * J_ij, j over the L * F outputs in order (deterministic).
+    const float* pjac = jac_opt->data_ptr<float>();
+    float* o = gx.data_ptr<float>();
+    const int64_t J = L * F;
+    at::parallel_for(0, N, 2048, [&](int64_t lo, int64_t hi) {
+      for (int64_t i = lo; i < hi; ++i) {
+        const float* g = pg + i * J;
+        const float* jj = pjac + i * J * 3;
+        float d0 = 0.f, d1 = 0.f, d2 = 0.f;
+        for (int64_t j = 0; j < J; ++j) {
+          d0 += g[j] * jj[3 * j];
+          d1 += g[j] * jj[3 * j + 1];
+          d2 += g[j] * jj[3 * j + 2];
+        }
+        o[3 * i] = d0;
+        o[3 * i + 1] = d1;
+        o[3 * i + 2] = d2;
+      }
+    });
+  } else if (need_x) {
     float* o = gx.data_ptr<float>();
     if (L == 0) {
       gx.zero_();

@@ -153,8 +153,10 @@ static inline void for_blocks(const LevelArgs& a, const float* tab, const float*
 template <int F>
 static void forward_impl(const LevelArgs& a) {
   const float* __restrict tab = a.table + a.level.offset * F;
+  const float scale = a.level.scale;
   alignas(64) float rows[8][F][kBlock];
   alignas(64) float acc[F][kBlock];
+  alignas(64) float jd[3][kBlock];
   for_blocks<F>(a, tab, nullptr, [&](const Block& b, int64_t start, int n) {
     gather<F>(tab, b, n, rows);
     for (int f = 0; f < F; ++f) {
@@ -166,6 +168,31 @@ static void forward_impl(const LevelArgs& a) {
     for (int i = 0; i < n; ++i) {
       float* o = a.out + (start + i) * a.out_stride + a.col;
       for (int f = 0; f < F; ++f) o[f] = acc[f][i];
+    }
+    if (!a.jac) return;
+    // d out_f / d x_k = scale * sum_c row_c,f * (+-1) * (weights of the two other axes), from
+    // the rows gathered above: the backward then needs no gather for the position gradient.
+    for (int f = 0; f < F; ++f) {
+      for (int k = 0; k < 3; ++k)
+        for (int i = 0; i < n; ++i) jd[k][i] = 0.f;
+      for (int c = 0; c < 8; ++c) {
+        const int c0 = c & 1, c1 = (c >> 1) & 1, c2 = (c >> 2) & 1;
+        for (int i = 0; i < n; ++i) {
+          const float t0 = b.frac[0][i], t1 = b.frac[1][i], t2 = b.frac[2][i];
+          const float w0 = c0 ? t0 : 1.f - t0, w1 = c1 ? t1 : 1.f - t1, w2 = c2 ? t2 : 1.f - t2;
+          const float r = rows[c][f][i];
+          jd[0][i] += (c0 ? r : -r) * (w1 * w2);
+          jd[1][i] += (c1 ? r : -r) * (w0 * w2);
+          jd[2][i] += (c2 ? r : -r) * (w0 * w1);
+        }
+      }
+      for (int i = 0; i < n; ++i) {
+        float* j = a.jac + ((start + i) * a.out_stride + a.col + f) * 3;
+        const bool in = b.inside[i];
+        j[0] = in ? jd[0][i] * scale : 0.f;
+        j[1] = in ? jd[1][i] * scale : 0.f;
+        j[2] = in ? jd[2][i] * scale : 0.f;
+      }
     }
   });
 }
