@@ -1,7 +1,7 @@
 """Autograd wrappers of the native CPU colour-field kernels (engine/color/cpu/).
 
 Hash grid: the forward saves the inputs, the table and, when the inputs need a gradient, the
-Jacobian d out / d x (N, levels * features, 3) it computes from the rows it gathers anyway; the
+Jacobian d out / d x (levels, N, features, 3) it computes from the rows it gathers anyway; the
 backward recomputes the corner indices and weights (cheap next to the memory traffic), scatters
 the dense table gradient and contracts the upstream gradient with the Jacobian, each only when
 autograd asks for it. SH: the 16-value direction encoding and its

@@ -22,7 +22,7 @@ struct LevelArgs {
   float* out;             // (N, out_stride): this level writes columns [col, col + F)
   int64_t out_stride;
   int64_t col;
-  float* jac;             // (N, out_stride, 3) d out / d x, or null; same columns as out
+  float* jac;             // (N, F, 3) d out / d x for this level (a slice of (L, N, F, 3)), or null
   // backward
   const float* grad_out;  // (N, out_stride), same columns
   float* grad_table;      // (rows, F) or null; this pass owns the level's rows

@@ -111,7 +111,8 @@ std::vector<Level> make_levels(const std::vector<double>& scales,
   return out;
 }
 
-// Returns (out, jacobian d out / d x of shape (N, L * F, 3) when need_jac, else undefined).
+// Returns (out, Jacobian d out / d x as (L, N, F, 3) when need_jac, else undefined). Level-major,
+// so each level task writes one contiguous stretch.
 std::vector<torch::Tensor> forward(torch::Tensor x, torch::Tensor table,
                                    std::vector<double> scales, std::vector<int64_t> sizes,
                                    std::vector<int64_t> strides, std::vector<int64_t> offsets,
@@ -126,7 +127,7 @@ std::vector<torch::Tensor> forward(torch::Tensor x, torch::Tensor table,
   const int64_t N = x.size(0), L = (int64_t)levels.size();
   auto out = torch::empty({N, L * F}, x.options());
   torch::Tensor jac;
-  if (need_jac) jac = torch::empty({N, L * F, 3}, x.options());
+  if (need_jac) jac = torch::empty({L, N, F, 3}, x.options());
   if (N == 0 || L == 0) return {out, jac};
   const int64_t blocks = (N + kPointsPerTask - 1) / kPointsPerTask;
   const LevelFn fwd = variant().fwd;
@@ -147,7 +148,7 @@ std::vector<torch::Tensor> forward(torch::Tensor x, torch::Tensor table,
     a.out = po;
     a.out_stride = L * F;
     a.col = l * F;
-    a.jac = pj;
+    a.jac = pj ? pj + l * N * F * 3 : nullptr;
     fwd(a, F);
   }
   return {out, jac};
@@ -172,9 +173,9 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
   const bool use_jac = need_x && jac_opt.has_value() && jac_opt->defined();
   if (use_jac) {
     TORCH_CHECK(jac_opt->is_contiguous() && jac_opt->scalar_type() == torch::kFloat32 &&
-                    jac_opt->dim() == 3 && jac_opt->size(0) == N && jac_opt->size(1) == L * F &&
-                    jac_opt->size(2) == 3,
-                "jac: expected a contiguous float32 (N, L * F, 3) tensor");
+                    jac_opt->dim() == 4 && jac_opt->size(0) == L && jac_opt->size(1) == N &&
+                    jac_opt->size(2) == F && jac_opt->size(3) == 3,
+                "jac: expected a contiguous float32 (L, N, F, 3) tensor");
   }
   if (need_x) {
     gx = torch::empty({N, 3}, x.options());
@@ -217,19 +218,22 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
     gt.zero_();
   }
   if (use_jac) {
-    // dx_i = sum_j g_ij * J_ij, j over the L * F outputs in order (deterministic).
+    // dx_i = sum over levels l and features f of g_i,lF+f * J_l,i,f (in that order:
+    // deterministic).
     const float* pjac = jac_opt->data_ptr<float>();
     float* o = gx.data_ptr<float>();
-    const int64_t J = L * F;
     at::parallel_for(0, N, 2048, [&](int64_t lo, int64_t hi) {
       for (int64_t i = lo; i < hi; ++i) {
-        const float* g = pg + i * J;
-        const float* jj = pjac + i * J * 3;
+        const float* g = pg + i * L * F;
         float d0 = 0.f, d1 = 0.f, d2 = 0.f;
-        for (int64_t j = 0; j < J; ++j) {
-          d0 += g[j] * jj[3 * j];
-          d1 += g[j] * jj[3 * j + 1];
-          d2 += g[j] * jj[3 * j + 2];
+        for (int64_t l = 0; l < L; ++l) {
+          const float* jj = pjac + (l * N + i) * F * 3;
+          for (int f = 0; f < F; ++f) {
+            const float gf = g[l * F + f];
+            d0 += gf * jj[3 * f];
+            d1 += gf * jj[3 * f + 1];
+            d2 += gf * jj[3 * f + 2];
+          }
         }
         o[3 * i] = d0;
         o[3 * i + 1] = d1;

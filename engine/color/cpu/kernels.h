@@ -187,7 +187,7 @@ static void forward_impl(const LevelArgs& a) {
         }
       }
       for (int i = 0; i < n; ++i) {
-        float* j = a.jac + ((start + i) * a.out_stride + a.col + f) * 3;
+        float* j = a.jac + ((start + i) * F + f) * 3;
         const bool in = b.inside[i];
         j[0] = in ? jd[0][i] * scale : 0.f;
         j[1] = in ? jd[1][i] * scale : 0.f;
