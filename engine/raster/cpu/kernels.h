@@ -3,54 +3,130 @@
 // This header is included by one translation unit per instruction set (kernels_avx2.cpp,
 // kernels_avx512.cpp); each defines RASTER_NS (the namespace) and RASTER_AVX512 before including
 // it, so the same source is compiled for both targets and raster.cpp picks one at run time.
-// A tile is 16x16 pixels and one tile row (16 floats) is one vector: two ymm registers on AVX2,
-// one zmm register on AVX-512. No OpenMP in here: raster.cpp parallelizes over tiles.
+// A tile is 16x16 pixels and one tile row (16 floats) is one vector: one zmm register on AVX-512,
+// an explicit pair of ymm halves on AVX2 (see the types below). No OpenMP in here: raster.cpp parallelizes over tiles.
 #include <immintrin.h>
 
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 
 #include "common.h"
 
 namespace RASTER_NS {
 
+// Sum of the 8 lanes of a ymm register.
+static inline float hsum8(__m256 s8) {
+  __m128 s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps(s8, 1));
+  s4 = _mm_add_ps(s4, _mm_movehl_ps(s4, s4));
+  s4 = _mm_add_ss(s4, _mm_movehdup_ps(s4));
+  return _mm_cvtss_f32(s4);
+}
+
+#if RASTER_AVX512
+// One zmm register per tile row: GCC vector extensions map 1:1 onto AVX-512.
 typedef float vf __attribute__((vector_size(64)));
 typedef int32_t vi __attribute__((vector_size(64)));
 
-static inline vf splat(float x) { return vf{} + x; }
-static inline vi splati(int32_t x) { return vi{} + x; }
+static inline vf vsel(vi m, vf a, vf b) { return m ? a : b; }
+static inline vi vseli(vi m, vi a, vi b) { return m ? a : b; }
+static inline vi to_int(vf x) { return __builtin_convertvector(x, vi); }
+static inline vf to_float(vi x) { return __builtin_convertvector(x, vf); }
+static inline vi bits_of(vf x) { return (vi)x; }
+static inline vf from_bits(vi x) { return (vf)x; }
+
+// Bit i set when lane i of the mask (0 or -1 per lane) is set.
+static inline uint32_t movemask(vi m) { return (uint32_t)_mm512_movepi32_mask((__m512i)m); }
+
+static inline float hsum(vf v) {
+  const __m256 lo = __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256 hi = __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15);
+  return hsum8(_mm256_add_ps(lo, hi));
+}
+#else
+// AVX2 has no 512-bit registers, and GCC lowers 64-byte generic vectors poorly there: comparisons,
+// ?: selects and __builtin_convertvector on them are scalarized lane by lane, and values bounce
+// through the stack. So a tile row is an explicit pair of native 8-lane (ymm) halves, with the
+// operators the kernels use defined half-wise; every operation below compiles to one ymm
+// instruction per half.
+typedef float hf __attribute__((vector_size(32), __may_alias__));
+typedef int32_t hi __attribute__((vector_size(32), __may_alias__));
+
+struct vf {
+  hf h[2];
+  float& operator[](int i) { return reinterpret_cast<float*>(h)[i]; }
+  float operator[](int i) const { return reinterpret_cast<const float*>(h)[i]; }
+};
+struct vi {
+  hi h[2];
+  int32_t& operator[](int i) { return reinterpret_cast<int32_t*>(h)[i]; }
+  int32_t operator[](int i) const { return reinterpret_cast<const int32_t*>(h)[i]; }
+};
+
+#define RASTER_VF_BINOP(op)                                                                    \
+  static inline vf operator op(vf a, vf b) { return vf{{a.h[0] op b.h[0], a.h[1] op b.h[1]}}; } \
+  static inline vf operator op(vf a, float b) { return vf{{a.h[0] op b, a.h[1] op b}}; }       \
+  static inline vf operator op(float a, vf b) { return vf{{a op b.h[0], a op b.h[1]}}; }       \
+  static inline vf& operator op##=(vf & a, vf b) { return a = a op b; }
+RASTER_VF_BINOP(+)
+RASTER_VF_BINOP(-)
+RASTER_VF_BINOP(*)
+RASTER_VF_BINOP(/)
+#undef RASTER_VF_BINOP
+static inline vf operator-(vf a) { return vf{{-a.h[0], -a.h[1]}}; }
+
+#define RASTER_VF_CMP(op)                                                                      \
+  static inline vi operator op(vf a, vf b) { return vi{{a.h[0] op b.h[0], a.h[1] op b.h[1]}}; } \
+  static inline vi operator op(vf a, float b) { return vi{{a.h[0] op b, a.h[1] op b}}; }
+RASTER_VF_CMP(<)
+RASTER_VF_CMP(>)
+RASTER_VF_CMP(<=)
+RASTER_VF_CMP(>=)
+#undef RASTER_VF_CMP
+
+static inline vi operator&(vi a, vi b) { return vi{{a.h[0] & b.h[0], a.h[1] & b.h[1]}}; }
+static inline vi& operator&=(vi& a, vi b) { return a = a & b; }
+static inline vi operator~(vi a) { return vi{{~a.h[0], ~a.h[1]}}; }
+static inline vi operator+(vi a, vi b) { return vi{{a.h[0] + b.h[0], a.h[1] + b.h[1]}}; }
+static inline vi operator<<(vi a, int s) { return vi{{a.h[0] << s, a.h[1] << s}}; }
+static inline vi operator<(vi a, vi b) { return vi{{a.h[0] < b.h[0], a.h[1] < b.h[1]}}; }
+static inline vi operator+(vi a, int32_t b) { return vi{{a.h[0] + b, a.h[1] + b}}; }
+
+static inline vf vsel(vi m, vf a, vf b) {
+  return vf{{m.h[0] ? a.h[0] : b.h[0], m.h[1] ? a.h[1] : b.h[1]}};
+}
+static inline vi vseli(vi m, vi a, vi b) {
+  return vi{{m.h[0] ? a.h[0] : b.h[0], m.h[1] ? a.h[1] : b.h[1]}};
+}
+static inline vi to_int(vf x) {
+  return vi{{__builtin_convertvector(x.h[0], hi), __builtin_convertvector(x.h[1], hi)}};
+}
+static inline vf to_float(vi x) {
+  return vf{{__builtin_convertvector(x.h[0], hf), __builtin_convertvector(x.h[1], hf)}};
+}
+static inline vi bits_of(vf x) { return vi{{(hi)x.h[0], (hi)x.h[1]}}; }
+static inline vf from_bits(vi x) { return vf{{(hf)x.h[0], (hf)x.h[1]}}; }
 
 // Bit i set when lane i of the mask (0 or -1 per lane) is set.
 static inline uint32_t movemask(vi m) {
-#if RASTER_AVX512
-  return (uint32_t)_mm512_movepi32_mask((__m512i)m);
-#else
-  __m256i lo, hi;
-  std::memcpy(&lo, &m, 32);
-  std::memcpy(&hi, reinterpret_cast<const char*>(&m) + 32, 32);
-  uint32_t a = (uint32_t)_mm256_movemask_ps(_mm256_castsi256_ps(lo));
-  uint32_t b = (uint32_t)_mm256_movemask_ps(_mm256_castsi256_ps(hi));
+  const uint32_t a = (uint32_t)_mm256_movemask_ps((__m256)m.h[0]);
+  const uint32_t b = (uint32_t)_mm256_movemask_ps((__m256)m.h[1]);
   return a | (b << 8);
+}
+
+static inline float hsum(vf v) { return hsum8((__m256)(v.h[0] + v.h[1])); }
 #endif
-}
 
-static inline float hsum(vf v) {
-  float s = 0.f;
-  for (int i = 0; i < 16; ++i) s += v[i];
-  return s;
-}
-
-static inline vf vmin(vf a, vf b) { return a < b ? a : b; }
-static inline vf vmax(vf a, vf b) { return a > b ? a : b; }
-static inline vf vsel(vi m, vf a, vf b) { return m ? a : b; }
+static inline vf splat(float x) { return vf{} + x; }
+static inline vi splati(int32_t x) { return vi{} + x; }
+static inline vf vmin(vf a, vf b) { return vsel(a < b, a, b); }
+static inline vf vmax(vf a, vf b) { return vsel(a > b, a, b); }
 
 // exp(x) for x <= 0 to ~2 ulp: range reduction by ln 2, degree-7 polynomial, exponent add.
 static inline vf vexp(vf x) {
   x = vmax(x, splat(-87.0f));
   const vf t = x * 1.44269504088896341f;
-  const vi n = __builtin_convertvector(t - 0.5f, vi);  // round to nearest for t <= 0
-  const vf nf = __builtin_convertvector(n, vf);
+  const vi n = to_int(t - 0.5f);  // round to nearest for t <= 0
+  const vf nf = to_float(n);
   vf r = x - nf * 0.693145751953125f;
   r = r - nf * 1.428606765330187045e-06f;
   vf p = splat(1.0f / 5040.0f);
@@ -61,8 +137,7 @@ static inline vf vexp(vf x) {
   p = p * r + 0.5f;
   p = p * r + 1.0f;
   p = p * r + 1.0f;
-  vi bits = (vi)p + (n << 23);
-  return (vf)bits;
+  return from_bits(bits_of(p) + (n << 23));
 }
 
 // Pixel rows of the tile (relative, [r0, r1]) a Gaussian can reach; false when none.
@@ -138,7 +213,7 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
         for (int k = 0; k < C; ++k) accv[k * TILE + r] += w * f[k];
         accv[C * TILE + r] += w * g.z;
         T[r] = vsel(blend, next_t, T[r]);
-        last[r] = blend ? splati(j - begin + 1) : last[r];
+        last[r] = vseli(blend, splati(j - begin + 1), last[r]);
       }
       if (movemask(stop)) {
         active[r] &= ~stop;
