@@ -118,8 +118,21 @@ static inline float hsum(vf v) { return hsum8((__m256)(v.h[0] + v.h[1])); }
 
 static inline vf splat(float x) { return vf{} + x; }
 static inline vi splati(int32_t x) { return vi{} + x; }
+// a < b ? a : b and a > b ? a : b. On AVX2 GCC emits compare + blendv for the ?: form, so the
+// min/max intrinsics (the same semantics: NaN and ties give b) are used there.
+#if RASTER_AVX512
 static inline vf vmin(vf a, vf b) { return vsel(a < b, a, b); }
 static inline vf vmax(vf a, vf b) { return vsel(a > b, a, b); }
+#else
+static inline vf vmin(vf a, vf b) {
+  return vf{{(hf)_mm256_min_ps((__m256)a.h[0], (__m256)b.h[0]),
+             (hf)_mm256_min_ps((__m256)a.h[1], (__m256)b.h[1])}};
+}
+static inline vf vmax(vf a, vf b) {
+  return vf{{(hf)_mm256_max_ps((__m256)a.h[0], (__m256)b.h[0]),
+             (hf)_mm256_max_ps((__m256)a.h[1], (__m256)b.h[1])}};
+}
+#endif
 
 // exp(x) for x <= 0 to ~2 ulp: range reduction by ln 2, degree-7 polynomial, exponent add.
 static inline vf vexp(vf x) {
