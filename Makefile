@@ -46,7 +46,7 @@ bench-quality: venv
 	$(PY) -m sparsesplat.engine.bench.quality $(BENCH_ARGS)
 
 bench-iteration: venv
-	PYTHONPATH=. $(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
+	$(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) .cache .mypy_cache .ruff_cache .pytest_cache build dist *.egg-info

@@ -21,8 +21,8 @@ from sparsesplat.engine.bench.common import machine_info, write_results
 
 def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dict[str, float]:
     """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up)."""
+    from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
-    from tests.engine.train.synthetic import make_scene
 
     scene, priors = make_scene(seed=0, width=width, height=height, n_gaussians=400)
     cfg = preset(

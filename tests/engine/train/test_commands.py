@@ -14,8 +14,8 @@ from PIL import Image
 
 from sparsesplat.engine.commands import render as render_cmd
 from sparsesplat.engine.commands import train as train_cmd
+from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer, load_model
-from tests.engine.train.synthetic import make_scene
 from tests.engine.train.test_trainer import small
 
 

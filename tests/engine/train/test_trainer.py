@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from sparsesplat.engine.errors import SceneError, TrainingDiverged
+from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import (
     ModelCollapsed,
     ProgressRecord,
@@ -20,7 +21,6 @@ from sparsesplat.engine.train import (
     load_model,
     preset,
 )
-from tests.engine.train.synthetic import make_scene
 
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]

@@ -1,4 +1,4 @@
-"""Tiny synthetic scenes for trainer tests: a random Gaussian blob seen by a few cameras."""
+"""Tiny synthetic scenes (a random Gaussian blob seen by a few cameras) for tests and benchmarks."""
 
 from __future__ import annotations
 
