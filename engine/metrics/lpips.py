@@ -103,12 +103,19 @@ class LPIPS(nn.Module):
                 f"LPIPS needs matching (N, 3, H, W), got {tuple(render.shape)} "
                 f"and {tuple(gt.shape)}"
             )
+        return self.distance_to_features(render, self.features_of(gt))
+
+    def features_of(self, images: Tensor) -> list[Tensor]:
+        """Normalised VGG taps of (N, 3, H, W) images in [0, 1]. A fixed reference image (the
+        ground truth of a held-out view) needs them once, not at every evaluation."""
         if self.input_range == "minus_one_one":
-            render, gt = render * 2 - 1, gt * 2 - 1
-        fa = self._taps((render - self.shift) / self.scale)
-        fb = self._taps((gt - self.shift) / self.scale)
+            images = images * 2 - 1
+        return self._taps((images - self.shift) / self.scale)
+
+    def distance_to_features(self, render: Tensor, reference: list[Tensor]) -> Tensor:
+        """Distance per batch item between ``render`` and precomputed reference taps."""
         total = torch.zeros(render.shape[0], dtype=render.dtype, device=render.device)
-        for head, a, b in zip(self.heads, fa, fb, strict=True):
+        for head, a, b in zip(self.heads, self.features_of(render), reference, strict=True):
             total = total + F.conv2d((a - b) ** 2, head).mean(dim=(1, 2, 3))
         return total
 

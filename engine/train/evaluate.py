@@ -12,6 +12,8 @@ import logging
 import math
 from collections.abc import Sequence
 
+import numpy as np
+import torch
 from torch import Tensor
 
 from sparsesplat.engine.metrics.image import composite_white, masked_psnr, psnr, quantize, ssim
@@ -31,16 +33,32 @@ class Evaluator:
     def __init__(self, use_lpips: bool = True) -> None:
         """Load LPIPS-VGG if ``use_lpips`` and its weights are available."""
         self.lpips: LPIPS | None = None
+        self._reference: dict[str, list[Tensor]] = {}
         if use_lpips:
             try:
                 self.lpips = LPIPS()
             except WeightsNotFound as exc:
                 log.warning("LPIPS disabled: %s", exc)
 
+    def _lpips(self, render: np.ndarray, truth: np.ndarray, key: str | None) -> float:
+        assert self.lpips is not None
+
+        def to_nchw(a: np.ndarray) -> Tensor:
+            return torch.from_numpy(a).float().permute(2, 0, 1)[None]
+
+        with torch.no_grad():
+            reference = self._reference.get(key) if key is not None else None
+            if reference is None:
+                reference = self.lpips.features_of(to_nchw(truth))
+                if key is not None:
+                    self._reference[key] = reference
+            return float(self.lpips.distance_to_features(to_nchw(render), reference)[0])
+
     def score(
-        self, pred: Tensor, gt: Tensor, mask: Tensor | None = None
+        self, pred: Tensor, gt: Tensor, mask: Tensor | None = None, key: str | None = None
     ) -> dict[str, float | None]:
-        """Metrics of one view: ``pred`` (3, H, W), ``gt`` (H, W, 3), optional (H, W) mask."""
+        """Metrics of one view: ``pred`` (3, H, W), ``gt`` (H, W, 3), optional (H, W) mask.
+        ``key`` names a fixed ground truth whose LPIPS features may be cached across calls."""
         render = quantize(pred.detach().clamp(0, 1).permute(1, 2, 0).float().cpu())
         truth = quantize(gt.detach().float().cpu())
         if mask is not None:
@@ -49,7 +67,7 @@ class Evaluator:
             render, truth = composite_white(render, m), composite_white(truth, m)
         else:
             value = psnr(render, truth)
-        lp = self.lpips.distance(render, truth) if self.lpips is not None else None
+        lp = self._lpips(render, truth, key) if self.lpips is not None else None
         return {"psnr": min(value, PSNR_CEILING), "ssim": ssim(render, truth), "lpips": lp}
 
     def mean(self, scores: Sequence[dict[str, float | None]]) -> dict[str, float | None]:

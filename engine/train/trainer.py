@@ -293,7 +293,7 @@ class Trainer:
                     self._raster,
                     geo,
                 )
-                scores.append(self._evaluator.score(out.image, v.image, v.mask))
+                scores.append(self._evaluator.score(out.image, v.image, v.mask, key=v.name))
         return self._evaluator.mean(scores)
 
     def _record(self, final: bool = False) -> bool:
