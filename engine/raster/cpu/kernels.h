@@ -116,6 +116,17 @@ static inline uint32_t movemask(vi m) {
 static inline float hsum(vf v) { return hsum8((__m256)(v.h[0] + v.h[1])); }
 #endif
 
+// dst = v. On AVX2 a plain aggregate copy of a value that stays live afterwards is done by GCC in
+// 16-byte pieces through a stack temporary; copying the halves keeps it to two ymm stores.
+static inline void assign(vf& dst, vf v) {
+#if RASTER_AVX512
+  dst = v;
+#else
+  dst.h[0] = v.h[0];
+  dst.h[1] = v.h[1];
+#endif
+}
+
 static inline vf splat(float x) { return vf{} + x; }
 static inline vi splati(int32_t x) { return vi{} + x; }
 // a < b ? a : b and a > b ? a : b. On AVX2 GCC emits compare + blendv for the ?: form, so the
@@ -322,7 +333,7 @@ void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, flo
       }
       const vf ra = 1.f / (1.f - alpha);
       const vf t_before = vsel(valid, T[r] * ra, T[r]);
-      T[r] = t_before;
+      assign(T[r], t_before);
       const vf w = vsel(valid, alpha * t_before, vf{});
       // dL/dalpha = sum_k (f_k T - after_k / (1 - alpha)) dL/dout_k + T_final/(1-alpha) * K.
       vf v_alpha = kbg[r] * ra;
