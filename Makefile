@@ -28,7 +28,7 @@ lint: venv
 	$(PY) -m ruff format --check .
 
 typecheck: venv
-	$(PY) -m mypy -p sparsesplat.api -p sparsesplat.client -p sparsesplat.server -p sparsesplat.worker
+	$(PY) -m mypy -p sparsesplat.api -p sparsesplat.client -p sparsesplat.server -p sparsesplat.worker -p sparsesplat.engine
 
 dockerlint: venv
 	$(VENV)/bin/hadolint docker/Dockerfile.cpu docker/Dockerfile.cuda

@@ -14,6 +14,7 @@ moments of every per-Gaussian tensor are cut or zero-extended along with the ten
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
@@ -156,8 +157,11 @@ class Gaussians:
 
     # -- table surgery ---------------------------------------------------------------------
     def _replace(
-        self, new_values: dict[str, Tensor], optimizer: torch.optim.Optimizer | None, state_fn
-    ) -> None:  # type: ignore[no-untyped-def]
+        self,
+        new_values: dict[str, Tensor],
+        optimizer: torch.optim.Optimizer | None,
+        state_fn: Callable[[Tensor], Tensor],
+    ) -> None:
         """Swap every per-Gaussian parameter for ``new_values[name]`` and transform its Adam
         moments with ``state_fn(old_moment) -> new_moment``."""
         for name, value in new_values.items():

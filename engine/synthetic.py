@@ -82,6 +82,6 @@ def make_scene(
         background=bg,
         near=0.5 * scale,
         far=10.0 * scale,
-        init_box=box,  # type: ignore[arg-type]
+        init_box=box,
     )
     return scene, [depths[i] for i in train_idx]

@@ -74,15 +74,15 @@ def run_case(n: int, threads: int, repeats: int) -> dict[str, Any]:
 
     def fwd() -> Any:
         with torch.no_grad():
-            return rasterize(*params, cam)
+            return rasterize(params[0], params[1], params[2], params[3], params[4], cam)
 
     def depth_fwd() -> Any:
         with torch.no_grad():
-            return rasterize(*params[:4], params[4][:, :0], cam)
+            return rasterize(params[0], params[1], params[2], params[3], params[4][:, :0], cam)
 
     def fwd_bwd() -> None:
         ps = [p.detach().requires_grad_(True) for p in params]
-        out = rasterize(*ps, cam)
+        out = rasterize(ps[0], ps[1], ps[2], ps[3], ps[4], cam)
         loss = out.image.mean() + 0.1 * out.depth.mean()
         loss.backward()
 

@@ -17,7 +17,7 @@ class _Blend(torch.autograd.Function):
     """Blending of projected 2D Gaussians; the backward is the kernel's analytic gradient."""
 
     @staticmethod
-    def forward(  # type: ignore[override]
+    def forward(
         ctx: Any,
         means2d: Tensor,
         conics: Tensor,
@@ -40,7 +40,7 @@ class _Blend(torch.autograd.Function):
         return image, depth, alpha, stats
 
     @staticmethod
-    def backward(  # type: ignore[override]
+    def backward(
         ctx: Any, v_image: Tensor, v_depth: Tensor, v_alpha: Tensor, _v_stats: Tensor
     ) -> tuple[Tensor | None, ...]:
         background, recs, feats, rank, offsets, lists, t_final, last = ctx.saved_tensors

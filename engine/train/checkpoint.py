@@ -81,9 +81,26 @@ class TrainedModel:
         cfg = self.config
         bg = self.background if background is None else torch.as_tensor(background).float()
 
-        def raster(*args: Any) -> RasterOutput:
+        def raster(
+            means: Tensor,
+            log_scales: Tensor,
+            quats: Tensor,
+            opacity: Tensor,
+            feats: Tensor,
+            cam: Camera,
+            bg: Tensor | None,
+        ) -> RasterOutput:
             return rasterize(
-                *args, near=self.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
+                means,
+                log_scales,
+                quats,
+                opacity,
+                feats,
+                cam,
+                bg,
+                near=self.raster_near,
+                eps2d=cfg.eps2d,
+                backend=cfg.raster_backend,
             )
 
         cam = camera.to(self.device, torch.float32)
