@@ -13,27 +13,23 @@ import math
 import torch
 from torch import Tensor
 
-# Normalisation constants of the real SH basis with the sign convention 3DGS uses (the l = 1
-# terms carry a minus sign on y and x). They are the standard values sqrt((2l+1)/4pi * ...).
-C0 = 0.28209479177387814
-C1 = 0.4886025119029199
-C2 = (
-    1.0925484305920792,
-    -1.0925484305920792,
-    0.31539156525252005,
-    -1.0925484305920792,
-    0.5462742152960396,
-)
-C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
+from sparsesplat.engine.color.sh import C0, C1, C2, C3, sh_basis
 
+__all__ = [
+    "C0",
+    "C1",
+    "C2",
+    "C3",
+    "MAX_DEGREE",
+    "dc_to_rgb",
+    "degree_from_coeffs",
+    "eval_sh",
+    "num_coeffs",
+    "rgb_to_dc",
+    "sh_basis",
+]
+
+# The basis and its constants have one definition, shared with the colour models.
 MAX_DEGREE = 3
 
 
@@ -48,36 +44,6 @@ def degree_from_coeffs(k: int) -> int:
     if k < 1 or (degree + 1) ** 2 != k or degree > MAX_DEGREE:
         raise ValueError(f"{k} SH coefficients is not (degree+1)^2 for a degree in 0..3")
     return degree
-
-
-def sh_basis(dirs: Tensor, degree: int) -> Tensor:
-    """Evaluate the basis functions: ``dirs`` (..., 3) unit vectors -> (..., (degree+1)^2)."""
-    if not 0 <= degree <= MAX_DEGREE:
-        raise ValueError(f"SH degree must be in 0..3, got {degree}")
-    x, y, z = dirs.unbind(-1)
-    out = [torch.full_like(x, C0)]
-    if degree >= 1:
-        out += [-C1 * y, C1 * z, -C1 * x]
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        out += [
-            C2[0] * x * y,
-            C2[1] * y * z,
-            C2[2] * (2.0 * zz - xx - yy),
-            C2[3] * x * z,
-            C2[4] * (xx - yy),
-        ]
-    if degree >= 3:
-        out += [
-            C3[0] * y * (3.0 * xx - yy),
-            C3[1] * x * y * z,
-            C3[2] * y * (4.0 * zz - xx - yy),
-            C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy),
-            C3[4] * x * (4.0 * zz - xx - yy),
-            C3[5] * z * (xx - yy),
-            C3[6] * x * (xx - 3.0 * yy),
-        ]
-    return torch.stack(out, dim=-1)
 
 
 def eval_sh(sh: Tensor, dirs: Tensor) -> Tensor:
