@@ -10,17 +10,11 @@ called only when the CPU reports AVX-512 at run time. ``-ffp-contract=off`` keep
 
 from __future__ import annotations
 
-import logging
-import os
-import shutil
-import sys
-import threading
 from pathlib import Path
 from types import ModuleType
 
 from sparsesplat.engine.errors import EngineError
-
-log = logging.getLogger(__name__)
+from sparsesplat.engine.native_build import NativeExtension
 
 SOURCE_DIR = Path(__file__).resolve().parent / "cpu"
 """Folder holding the C++ sources."""
@@ -45,44 +39,18 @@ class HashGridBuildError(EngineError, RuntimeError):
     """The native hash-grid extension could not be compiled or loaded."""
 
 
-_lock = threading.Lock()
-_module: ModuleType | None = None
-
-
-def _ensure_ninja_on_path() -> None:
-    """torch's builder needs ``ninja``; the venv ships it next to the interpreter."""
-    if shutil.which("ninja") is None:
-        bindir = str(Path(sys.executable).parent)
-        os.environ["PATH"] = bindir + os.pathsep + os.environ.get("PATH", "")
+_EXTENSION = NativeExtension(
+    EXTENSION_NAME,
+    SOURCE_DIR,
+    SOURCES,
+    CFLAGS,
+    on_failure=HashGridBuildError,
+    failure_hint="needs g++ with AVX2 support and ninja; set SPARSESPLAT_HASHGRID=torch to use "
+    "the torch implementation instead",
+    description="native hash grid",
+)
 
 
 def load_extension() -> ModuleType:
     """Return the compiled extension, building it on first use; HashGridBuildError on failure."""
-    global _module
-    if _module is not None:
-        return _module
-    with _lock:
-        if _module is not None:
-            return _module
-        _ensure_ninja_on_path()
-        from torch.utils import cpp_extension
-
-        try:
-            mod = cpp_extension.load(
-                name=EXTENSION_NAME,
-                sources=[str(SOURCE_DIR / f) for f in SOURCES],
-                extra_cflags=CFLAGS,
-                extra_ldflags=["-fopenmp"],
-                extra_include_paths=[str(SOURCE_DIR)],
-                verbose=False,
-            )
-        except Exception as exc:  # the builder raises RuntimeError/CalledProcessError/OSError
-            tail = str(exc)[-4000:]
-            raise HashGridBuildError(
-                f"building the native hash grid from {SOURCE_DIR} failed (needs g++ with AVX2 "
-                f"support and ninja; set SPARSESPLAT_HASHGRID=torch to use the torch "
-                f"implementation instead): {tail}"
-            ) from exc
-        log.info("native hash grid loaded: %s kernels", mod.variant())
-        _module = mod
-        return mod
+    return _EXTENSION.load()

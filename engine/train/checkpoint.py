@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -81,27 +82,9 @@ class TrainedModel:
         cfg = self.config
         bg = self.background if background is None else torch.as_tensor(background).float()
 
-        def raster(
-            means: Tensor,
-            log_scales: Tensor,
-            quats: Tensor,
-            opacity: Tensor,
-            feats: Tensor,
-            cam: Camera,
-            bg: Tensor | None,
-        ) -> RasterOutput:
-            return rasterize(
-                means,
-                log_scales,
-                quats,
-                opacity,
-                feats,
-                cam,
-                bg,
-                near=self.raster_near,
-                eps2d=cfg.eps2d,
-                backend=cfg.raster_backend,
-            )
+        raster = functools.partial(
+            rasterize, near=self.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
+        )
 
         cam = camera.to(self.device, torch.float32)
         return _render_model(self.gaussians, self.color, cam, bg.to(self.device), raster, self._geo)
