@@ -19,35 +19,69 @@ def l1_loss(pred: Tensor, target: Tensor) -> Tensor:
     return (pred - target).abs().mean()
 
 
-def _gaussian_window(size: int, sigma: float, channels: int, like: Tensor) -> Tensor:
+def _gaussian_1d(size: int, sigma: float, like: Tensor) -> Tensor:
     coords = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
     g = torch.exp(-(coords**2) / (2 * sigma**2))
-    g = g / g.sum()
-    w = g[:, None] * g[None, :]
-    return w.expand(channels, 1, size, size).contiguous()
+    return g / g.sum()
 
 
-def ssim(pred: Tensor, target: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
+def _blur(stack: Tensor, window: int, sigma: float) -> Tensor:
+    """Zero-padded Gaussian blur of every channel of ``stack`` (1, C, H, W). The 2D window is
+    the outer product of two 1D windows, and zero padding factors the same way, so two 1D
+    passes equal the 11x11 convolution (22 instead of 121 multiply-adds per pixel)."""
+    c, pad = stack.shape[1], window // 2
+    g = _gaussian_1d(window, sigma, stack)
+    vertical = g.view(1, 1, window, 1).expand(c, 1, window, 1)
+    horizontal = g.view(1, 1, 1, window).expand(c, 1, 1, window)
+    out = F.conv2d(stack, vertical, padding=(pad, 0), groups=c)
+    return F.conv2d(out, horizontal, padding=(0, pad), groups=c)
+
+
+class SSIMTarget:
+    """The target-only SSIM statistics (local mean and second moment) of one image, computed
+    once: training images never change, so the trainer keeps one per view and each SSIM call
+    blurs only the prediction's three maps."""
+
+    def __init__(self, target: Tensor, window: int = 11, sigma: float = 1.5) -> None:
+        y = target.detach().unsqueeze(0)
+        c = y.shape[1]
+        blurred = _blur(torch.cat([y, y * y], dim=1), window, sigma)
+        self.image = target.detach()
+        self.mu = blurred[:, :c]
+        self.var = blurred[:, c:] - self.mu**2
+        self.window, self.sigma = window, sigma
+
+
+def ssim(
+    pred: Tensor,
+    target: Tensor | SSIMTarget,
+    window: int = 11,
+    sigma: float = 1.5,
+) -> Tensor:
     """3DGS SSIM: 11x11 Gaussian window (sigma 1.5), zero padding, C1=0.01², C2=0.03², mean
-    over all pixels and channels. Inputs (C, H, W) in [0, 1]."""
+    over all pixels and channels. Inputs (C, H, W) in [0, 1]; ``target`` may be a precomputed
+    :class:`SSIMTarget` (its window and sigma then apply)."""
+    t = target if isinstance(target, SSIMTarget) else SSIMTarget(target, window, sigma)
     c = pred.shape[0]
-    w = _gaussian_window(window, sigma, c, pred)
-    x, y = pred.unsqueeze(0), target.unsqueeze(0)
-    pad = window // 2
-    mu_x = F.conv2d(x, w, padding=pad, groups=c)
-    mu_y = F.conv2d(y, w, padding=pad, groups=c)
-    sxx = F.conv2d(x * x, w, padding=pad, groups=c) - mu_x**2
-    syy = F.conv2d(y * y, w, padding=pad, groups=c) - mu_y**2
-    sxy = F.conv2d(x * y, w, padding=pad, groups=c) - mu_x * mu_y
+    x = pred.unsqueeze(0)
+    blurred = _blur(torch.cat([x, x * x, x * t.image.unsqueeze(0)], dim=1), t.window, t.sigma)
+    mu_x = blurred[:, :c]
+    sxx = blurred[:, c : 2 * c] - mu_x**2
+    sxy = blurred[:, 2 * c :] - mu_x * t.mu
     c1, c2 = 0.01**2, 0.03**2
-    num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
-    den = (mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2)
+    num = (2 * mu_x * t.mu + c1) * (2 * sxy + c2)
+    den = (mu_x**2 + t.mu**2 + c1) * (sxx + t.var + c2)
     return (num / den).mean()
 
 
-def photometric_loss(pred: Tensor, target: Tensor, lambda_dssim: float) -> Tensor:
-    """DNGaussian's colour loss: L1 + lambda * (1 - SSIM) (L1 is NOT scaled by 1 - lambda)."""
-    return l1_loss(pred, target) + lambda_dssim * (1.0 - ssim(pred, target))
+def photometric_loss(
+    pred: Tensor, target: Tensor, lambda_dssim: float, ssim_target: SSIMTarget | None = None
+) -> Tensor:
+    """DNGaussian's colour loss: L1 + lambda * (1 - SSIM) (L1 is NOT scaled by 1 - lambda).
+    ``ssim_target``: ``target``'s precomputed SSIM statistics, if the caller keeps them."""
+    if lambda_dssim == 0:
+        return l1_loss(pred, target)
+    return l1_loss(pred, target) + lambda_dssim * (1.0 - ssim(pred, ssim_target or target))
 
 
 def patchify(depth: Tensor, patch: int) -> Tensor:

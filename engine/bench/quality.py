@@ -52,23 +52,6 @@ DEFAULT_VARIANTS = ("full", "no_depth", "prior:pydnet", "prior:plane_sweep")
 PRESET_OF_FORMAT = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
 """Preset per scene format (the paper protocol); other formats use ``default``."""
 
-# Config fields counted in iterations. With ``--iterations`` below the preset's count they are
-# scaled by the same factor, so a shortened run still densifies, decays its position learning
-# rate and switches on its depth terms at the same fractions of the run as the full protocol.
-# densify_interval is kept: its gradient statistics need ~100 iterations (33 per view) to settle.
-ITERATION_FIELDS = (
-    "lr_means_start",
-    "lr_means_steps",
-    "densify_from",
-    "densify_until",
-    "hard_depth_start",
-    "soft_depth_start",
-    "depth_until",
-    "depth_smooth_start",
-    "sh_degree_interval",
-    "opacity_reset_interval",
-)
-
 
 def default_data_root() -> Path:
     """``$SPARSESPLAT_SHARED_DATA`` or ``<repo>/../shared/data``."""
@@ -112,24 +95,6 @@ def find_scenes(roots: Sequence[Path], max_depth: int = 3) -> list[Path]:
             raise SystemExit(f"bench-quality: {root} is not a folder")
         visit(root, 0)
     return sorted(dict.fromkeys(found))
-
-
-def scale_schedule(config: Any, iterations: int) -> Any:
-    """``config`` with ``iterations`` set and iteration-counted fields scaled to match.
-
-    Only shortening scales the schedule; a longer run keeps the preset's schedule (the extra
-    iterations then refine at the final learning rate, as the reference does).
-    """
-    factor = min(1.0, iterations / config.iterations)
-    changes: dict[str, Any] = {"iterations": iterations}
-    if factor < 1.0:
-        for name in ITERATION_FIELDS:
-            value = getattr(config, name, None)
-            if isinstance(value, int) and not isinstance(value, bool):
-                changes[name] = max(1, round(value * factor))
-        clean = getattr(config, "clean_iterations", ())
-        changes["clean_iterations"] = tuple(sorted({max(1, round(i * factor)) for i in clean}))
-    return dataclasses.replace(config, **changes).validate()
 
 
 def variant_config(base: Any, variant: str) -> Any:
@@ -289,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
             checkpoint_interval_s=0.0,
         )
         if args.iterations:
-            base = scale_schedule(base, args.iterations)
+            base = base.with_iterations(args.iterations)
         trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> row of this scene
         for variant in variants:
             config = variant_config(base, variant)

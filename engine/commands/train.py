@@ -20,7 +20,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--preset", default=None, help="llff | dtu | blender | default (default: from the format)"
     )
     parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")
-    parser.add_argument("--iterations", type=int, default=None, help="override the iterations")
+    parser.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help="train this many iterations; fewer than the preset's compress its schedule",
+    )
     parser.add_argument("--prior", default=None, help="depth prior setting (default: pydnet)")
     parser.add_argument("--no-depth", action="store_true", help="train without depth losses")
     parser.add_argument("--seed", type=int, default=None, help="random seed")
@@ -43,8 +48,6 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
             out[key] = value
-    if args.iterations is not None:
-        out["iterations"] = args.iterations
     if args.seed is not None:
         out["seed"] = args.seed
     if args.prior is not None:
@@ -64,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
         scene = load_scene(args.scene, views=args.views)
         name = args.preset or _FORMAT_PRESET.get(scene.format, "default")
         config = preset(name, **_overrides(args))
+        if args.iterations is not None:
+            config = config.with_iterations(args.iterations)
         priors = None
         if config.uses_depth:
             from sparsesplat.engine.priors import compute_priors

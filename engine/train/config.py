@@ -227,6 +227,30 @@ class TrainConfig:
         """Whether any depth pass runs (a prior is needed)."""
         return self.depth_prior != "none" and (self.hard_depth or self.soft_depth)
 
+    def with_iterations(self, iterations: int) -> TrainConfig:
+        """A copy that trains ``iterations`` iterations on the same schedule, compressed.
+
+        Shortening scales every iteration-counted field (:data:`SCHEDULE_FIELDS` and
+        ``clean_iterations``) by the same factor, so a short run still densifies, decays its
+        position learning rate and switches its depth terms on at the same fractions of the
+        run. ``densify_interval`` is kept: its gradient statistics need ~100 iterations to
+        settle. A longer run keeps the schedule; the extra iterations refine at the final
+        learning rate, as the reference does.
+        """
+        if iterations < 1:
+            raise ConfigError(f"iterations must be >= 1, got {iterations}")
+        factor = min(1.0, iterations / self.iterations)
+        changes: dict[str, Any] = {"iterations": iterations}
+        if factor < 1.0:
+            for name in SCHEDULE_FIELDS:
+                value = getattr(self, name)
+                if isinstance(value, int) and not isinstance(value, bool):
+                    changes[name] = max(1, round(value * factor))
+            changes["clean_iterations"] = tuple(
+                sorted({max(1, round(i * factor)) for i in self.clean_iterations})
+            )
+        return dataclasses.replace(self, **changes).validate()
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON dict of every field."""
         return dataclasses.asdict(self)
@@ -235,6 +259,21 @@ class TrainConfig:
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise :class:`ConfigError`."""
         return _apply(cls(), data)
+
+
+SCHEDULE_FIELDS = (
+    "lr_means_start",
+    "lr_means_steps",
+    "densify_from",
+    "densify_until",
+    "hard_depth_start",
+    "soft_depth_start",
+    "depth_until",
+    "depth_smooth_start",
+    "sh_degree_interval",
+    "opacity_reset_interval",
+)
+"""Fields counted in iterations, scaled by :meth:`TrainConfig.with_iterations`."""
 
 
 def _apply(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:

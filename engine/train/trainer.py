@@ -34,6 +34,7 @@ from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, ma
 from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
 from sparsesplat.engine.losses import (
+    SSIMTarget,
     edge_aware_smoothness,
     global_local_depth_loss,
     opacity_regularizer,
@@ -142,6 +143,8 @@ class Trainer:
         self.images = [
             v.image.permute(2, 0, 1).contiguous().float().to(dev) for v in self.scene.train
         ]
+        # The targets' SSIM statistics are fixed: computed once, not every iteration.
+        self.ssim_targets = [SSIMTarget(img) for img in self.images]
         self.priors: list[Tensor] | None = None
         self.smooth_guides: list[Tensor] | None = None
         if cfg.uses_depth:
@@ -560,7 +563,7 @@ class Trainer:
         )
         t = self._tick("photo_render", t)
         scales = g.scales
-        photo = photometric_loss(out.image, gt, cfg.lambda_dssim)
+        photo = photometric_loss(out.image, gt, cfg.lambda_dssim, self.ssim_targets[i])
         loss = photo
         if cfg.shape_weight:
             loss = loss + cfg.shape_weight * shape_regularizer(scales)

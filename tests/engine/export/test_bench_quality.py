@@ -30,18 +30,6 @@ def test_find_scenes(tmp_path: Path) -> None:
     assert quality.find_scenes([tmp_path / "llff" / "a"]) == [tmp_path / "llff" / "a"]
 
 
-def test_scale_schedule_keeps_fractions() -> None:
-    base = preset("llff")
-    short = quality.scale_schedule(base, 1000)
-    factor = 1000 / base.iterations
-    assert short.iterations == 1000
-    assert short.densify_until == round(base.densify_until * factor)
-    assert short.soft_depth_start == round(base.soft_depth_start * factor)
-    assert short.densify_interval == base.densify_interval  # statistics need ~100 iterations
-    longer = quality.scale_schedule(base, 9000)
-    assert longer.iterations == 9000 and longer.densify_until == base.densify_until
-
-
 def test_variants() -> None:
     base = preset("dtu")
     assert quality.variant_config(base, "full") == base

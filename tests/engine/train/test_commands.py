@@ -57,6 +57,6 @@ def test_train_command_options() -> None:
     args = _parse(train_cmd, ["scene", "--out", "o", "--no-depth", "--iterations", "7",
                               "--set", "lambda_dssim=0.3"])  # fmt: skip
     assert train_cmd._overrides(args) == {
-        "lambda_dssim": 0.3, "iterations": 7, "depth_prior": "none"
+        "lambda_dssim": 0.3, "depth_prior": "none"
     }  # fmt: skip
     assert torch.is_tensor(torch.zeros(1))

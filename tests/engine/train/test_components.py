@@ -13,6 +13,7 @@ from sparsesplat.engine.color.models import NeuralColor, SHColor, make_color_mod
 from sparsesplat.engine.color.sh import sh_basis
 from sparsesplat.engine.gaussians import Gaussians, knn_log_scales
 from sparsesplat.engine.losses import (
+    SSIMTarget,
     depth_norm_loss,
     edge_aware_smoothness,
     global_local_depth_loss,
@@ -194,6 +195,40 @@ def test_ssim_identity_and_drop() -> None:
     assert float(ssim(x, x.flip(-1))) < 0.5
 
 
+def _ssim_2d_reference(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """The 3DGS formula with the full 11x11 window in float64 (the definition, unoptimized)."""
+    x, y = x.double().unsqueeze(0), y.double().unsqueeze(0)
+    c = x.shape[1]
+    coords = torch.arange(11, dtype=torch.float64) - 5
+    g = torch.exp(-(coords**2) / (2 * 1.5**2))
+    g = g / g.sum()
+    w = (g[:, None] * g[None, :]).expand(c, 1, 11, 11)
+
+    def blur(t: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.conv2d(t, w, padding=5, groups=c)
+
+    mx, my = blur(x), blur(y)
+    sxx, syy, sxy = blur(x * x) - mx**2, blur(y * y) - my**2, blur(x * y) - mx * my
+    num = (2 * mx * my + 1e-4) * (2 * sxy + 9e-4)
+    den = (mx**2 + my**2 + 1e-4) * (sxx + syy + 9e-4)
+    return (num / den).mean()
+
+
+def test_separable_ssim_and_cached_target_match_the_2d_definition() -> None:
+    seed = _seed()
+    gen = torch.Generator().manual_seed(seed)
+    y = torch.rand(3, 37, 53, generator=gen)
+    x = (y + 0.2 * torch.randn(3, 37, 53, generator=gen)).clamp(0, 1).requires_grad_(True)
+    want = _ssim_2d_reference(x.detach(), y)
+    direct, cached = ssim(x, y), ssim(x, SSIMTarget(y))
+    assert float(direct) == pytest.approx(float(want), abs=1e-5), f"seed {seed}"
+    assert float(cached) == pytest.approx(float(want), abs=1e-5), f"seed {seed}"
+    (grad,) = torch.autograd.grad(cached, x)
+    xr = x.detach().double().requires_grad_(True)
+    (want_grad,) = torch.autograd.grad(_ssim_2d_reference(xr, y), xr)
+    assert torch.allclose(grad.double(), want_grad, atol=1e-7, rtol=1e-3), f"seed {seed}"
+
+
 def test_depth_loss_invariant_to_affine_prior() -> None:
     seed = _seed()
     d = torch.rand(1, 30, 40, generator=torch.Generator().manual_seed(seed)) + 1.0
@@ -263,3 +298,20 @@ def test_presets_and_config_errors() -> None:
         preset("llff", patch_min=9, patch_max=3)
     with pytest.raises(ConfigError, match="sh_degree"):
         preset("llff", color_model="sh", sh_degree=4)
+
+
+def test_with_iterations_compresses_the_schedule() -> None:
+    base = preset("dtu")
+    n = random.randrange(100, base.iterations)
+    short = base.with_iterations(n)
+    factor = n / base.iterations
+    assert short.iterations == n
+    assert short.densify_until == round(base.densify_until * factor)
+    assert short.soft_depth_start == round(base.soft_depth_start * factor)
+    assert short.lr_means_steps == round(base.lr_means_steps * factor)
+    assert short.clean_iterations[-1] == n and len(short.clean_iterations) <= 7, f"n={n}"
+    assert short.densify_interval == base.densify_interval  # statistics need ~100 iterations
+    longer = base.with_iterations(9000)
+    assert longer.iterations == 9000 and longer.densify_until == base.densify_until
+    with pytest.raises(ConfigError, match="iterations"):
+        base.with_iterations(0)
