@@ -102,9 +102,14 @@ def plot_report(records: Sequence[dict[str, Any]], path: Path, title: str | None
 
 
 def write_report(
-    records: Sequence[dict[str, Any]], out_dir: str | Path, title: str | None = None
+    records: Sequence[dict[str, Any]],
+    out_dir: str | Path,
+    title: str | None = None,
+    plot: bool = True,
 ) -> dict[str, Path]:
-    """Write ``metrics_series.{json,csv,png}`` into ``out_dir``; returns their paths by kind."""
+    """Write ``metrics_series.{json,csv,png}`` into ``out_dir``; returns their paths by kind.
+    ``plot=False`` skips the PNG (the trainer refreshes the tables at every record and draws
+    the plot once at the end)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     columns = _columns(records)
@@ -116,7 +121,10 @@ def write_report(
         writer.writeheader()
         # None is written as an empty cell, the usual CSV spelling of a missing value.
         writer.writerows({c: ("" if v is None else v) for c, v in row.items()} for row in rows)
-    plot_report(records, paths["png"], title)
+    if plot:
+        plot_report(records, paths["png"], title)
+    else:
+        del paths["png"]
     return paths
 
 

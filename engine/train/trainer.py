@@ -319,6 +319,10 @@ class Trainer:
         )
         self._loss_sum, self._loss_count = 0.0, 0
         self.records.append(rec.to_dict())
+        if self.out_dir is not None and not final:
+            # Keep the on-disk series current so a long run can be followed (and a killed one
+            # still leaves its curve); the PNG is drawn once, at the end.
+            self._write_series(plot=False)
         return self._emit(rec)
 
     # -- checkpoints -------------------------------------------------------------------------
@@ -715,13 +719,13 @@ class Trainer:
             iteration=self.iteration,
         )
 
-    def _write_series(self) -> dict[str, Path]:
+    def _write_series(self, plot: bool = True) -> dict[str, Path]:
         try:
             from sparsesplat.engine.report import write_report
         except ImportError:
             return {}
         assert self.out_dir is not None
-        paths = write_report(self.records, self.out_dir)
+        paths = write_report(self.records, self.out_dir, plot=plot)
         return {f"series_{k}": Path(v) for k, v in paths.items()}
 
     def _export(self, metrics: dict[str, Any]) -> dict[str, Path]:

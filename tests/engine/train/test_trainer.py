@@ -46,10 +46,19 @@ def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path) -> None:
     seed = random.randrange(1000)
     scene, priors = make_scene(seed=seed)
     events: list[Any] = []
-    result = Trainer(
-        scene, small(eval_every=10, export=True), priors, tmp_path, events.append
-    ).run()
+    rows_on_disk: list[int] = []
+
+    def watch(event: Any) -> None:
+        events.append(event)
+        if isinstance(event, ProgressRecord) and not event.final:
+            # The series on disk is current while the run goes on.
+            lines = (tmp_path / "metrics_series.csv").read_text().strip().splitlines()
+            rows_on_disk.append(len(lines) - 1)
+
+    result = Trainer(scene, small(eval_every=10, export=True), priors, tmp_path, watch).run()
     recs = [e for e in events if isinstance(e, ProgressRecord)]
+    assert rows_on_disk == list(range(1, len(recs))), rows_on_disk
+    assert (tmp_path / "metrics_series.png").is_file()
     states = [e.state for e in events if isinstance(e, StateChange)]
     assert recs[0].iteration == 0 and recs[-1].final and recs[-1].iteration == 40
     assert recs[-1].psnr > recs[0].psnr + 1.0, f"seed {seed}: {[r.psnr for r in recs]}"
