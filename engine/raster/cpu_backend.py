@@ -45,10 +45,14 @@ class _Blend(torch.autograd.Function):
     ) -> tuple[Tensor | None, ...]:
         background, recs, feats, rank, offsets, lists, t_final, last = ctx.saved_tensors
         ext = load_extension()
+        # The soft-depth pass trains opacities only: skip the 2D mean and conic gradients.
+        geometry = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
         v_m2, v_con, v_op, v_dep, v_feat = ext.backward(
             recs, feats, rank, offsets, lists, t_final, last, background,
-            v_image.contiguous(), v_depth.contiguous(), v_alpha.contiguous(), ctx.n,
+            v_image.contiguous(), v_depth.contiguous(), v_alpha.contiguous(), ctx.n, geometry,
         )  # fmt: skip
+        if not geometry:
+            v_m2 = v_con = None
         v_bg = None
         if ctx.needs_input_grad[5]:
             v_bg = (v_image * t_final.unsqueeze(0)).sum(dim=(1, 2))

@@ -52,6 +52,7 @@ struct TileBwd {
   const float* v_image;     // (C, H, W)
   const float* v_depth;     // (H, W)
   const float* v_alpha;     // (H, W)
+  bool geometry;            // false: only opacity, depth and feature gradients are wanted
 };
 
 namespace avx2 {

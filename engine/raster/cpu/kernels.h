@@ -263,8 +263,11 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
 
 // Backward of one tile: walks the tile's list back to front, undoing the transmittance, and adds
 // per-Gaussian gradients (layout GradLayout) into grad (this thread's buffer, indexed by rank).
-// scratch holds (3 C + 4) * 256 floats (64-byte aligned).
-void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad) {
+// scratch holds (3 C + 4) * 256 floats (64-byte aligned). Geo = false skips the 2D mean and
+// conic gradients (their slots stay zero): the soft-depth pass trains opacities only.
+template <bool Geo>
+static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* scratch,
+                               float* grad) {
   const int x0 = tile_x * TILE, y0 = tile_y * TILE;
   const int rows = a.height - y0 < TILE ? a.height - y0 : TILE;
   const int cols = a.width - x0 < TILE ? a.width - x0 : TILE;
@@ -352,19 +355,28 @@ void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, flo
       // The 0.999 clamp has no gradient (gsplat: only when o * exp(-power) <= 0.999).
       const vi live = valid & (oe <= 0.999f);
       const vf va = vsel(live, v_alpha, vf{});
-      const vf v_sigma = -oe * va;
       gacc[kGradO] += e * va;
-      gacc[kGradA] += 0.5f * dx * dx * v_sigma;
-      gacc[kGradB] += dx * dy * v_sigma;
-      gacc[kGradC] += (0.5f * dy * dy) * v_sigma;
-      gacc[kGradX] += v_sigma * (g.a * dx + g.b * dy);
-      gacc[kGradY] += v_sigma * (g.b * dx + g.c * dy);
+      if constexpr (Geo) {
+        const vf v_sigma = -oe * va;
+        gacc[kGradA] += 0.5f * dx * dx * v_sigma;
+        gacc[kGradB] += dx * dy * v_sigma;
+        gacc[kGradC] += (0.5f * dy * dy) * v_sigma;
+        gacc[kGradX] += v_sigma * (g.a * dx + g.b * dy);
+        gacc[kGradY] += v_sigma * (g.b * dx + g.c * dy);
+      }
     }
     if (touched) {
       float* out = grad + (int64_t)rank * S;
-      for (int s = 0; s < S; ++s) out[s] += hsum(gacc[s]);
+      for (int s = Geo ? 0 : kGradO; s < S; ++s) out[s] += hsum(gacc[s]);
     }
   }
+}
+
+void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad) {
+  if (a.geometry)
+    backward_tile_impl<true>(a, tile_x, tile_y, scratch, grad);
+  else
+    backward_tile_impl<false>(a, tile_x, tile_y, scratch, grad);
 }
 
 }  // namespace RASTER_NS

@@ -224,12 +224,14 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics,
   return out;
 }
 
-// Returns {v_means2d (N,2), v_conics (N,3), v_opacities (N,), v_depths (N,), v_features (N,C)}.
+// Returns {v_means2d (N,2), v_conics (N,3), v_opacities (N,), v_depths (N,), v_features (N,C)};
+// with geometry = false, v_means2d and v_conics are zeros (not computed).
 std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
                                     torch::Tensor rank_t, torch::Tensor offsets_t,
                                     torch::Tensor list_t, torch::Tensor t_final,
                                     torch::Tensor last, torch::Tensor bg, torch::Tensor v_image,
-                                    torch::Tensor v_depth, torch::Tensor v_alpha, int64_t n) {
+                                    torch::Tensor v_depth, torch::Tensor v_alpha, int64_t n,
+                                    bool geometry) {
   check_cpu_f32(v_image, "grad image");
   check_cpu_f32(v_depth, "grad depth");
   check_cpu_f32(v_alpha, "grad alpha");
@@ -245,7 +247,7 @@ std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
                feats_t.data_ptr<float>(), list_t.data_ptr<int32_t>(),
                offsets_t.data_ptr<int32_t>(), tiles_x, W, H, C, bg.data_ptr<float>(),
                t_final.data_ptr<float>(), last.data_ptr<int32_t>(), v_image.data_ptr<float>(),
-               v_depth.data_ptr<float>(), v_alpha.data_ptr<float>()};
+               v_depth.data_ptr<float>(), v_alpha.data_ptr<float>(), geometry};
   const BwdFn bwd = variant().bwd;
 #pragma omp parallel num_threads(nt)
   {

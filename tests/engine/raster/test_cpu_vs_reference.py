@@ -79,3 +79,27 @@ def test_avx2_variant_matches_default() -> None:
     assert abs(a["img"] - b["img"]) <= 1e-5 * abs(b["img"]), (a, b)
     for ga, gb in zip(a["g"], b["g"], strict=True):
         assert abs(ga - gb) <= 1e-4 * abs(gb) + 1e-9, (a, b)
+
+
+@pytest.mark.parametrize("channels", [0, 3])
+def test_opacity_only_backward_matches_full_backward(channels: int) -> None:
+    """The soft-depth pass's case (only opacities require grad) takes the kernel's
+    geometry-free backward; its opacity and feature gradients equal the full backward's."""
+    seed = random.randrange(2**31)
+    gs = random_gaussians(150, seed, channels=channels)
+    cam = camera(41, 33)
+    gen = torch.Generator().manual_seed(seed)
+    weights = [torch.rand(channels, 33, 41, generator=gen), torch.rand(1, 33, 41, generator=gen)]
+
+    def grads(geometry: bool) -> list[torch.Tensor]:
+        means = gs.means.clone().requires_grad_(geometry)
+        logits = gs.opacity_logits.clone().requires_grad_(True)
+        feats = gs.features.clone().requires_grad_(channels > 0)
+        out = rasterize(means, gs.log_scales, gs.quats, logits, feats, cam, backend="cpu")
+        loss = (out.image * weights[0]).sum() + (out.depth * weights[1]).sum()
+        wanted = [logits] + ([feats] if channels else [])
+        return list(torch.autograd.grad(loss, wanted))
+
+    for full, opacity_only in zip(grads(True), grads(False), strict=True):
+        assert torch.allclose(full, opacity_only, rtol=1e-5, atol=1e-7), f"seed {seed}"
+    assert float(grads(False)[0].abs().max()) > 0, f"seed {seed}: no opacity gradient"
