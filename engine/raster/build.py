@@ -1,10 +1,14 @@
-"""Build (once, cached) and load the native CPU rasterizer extension.
+"""Build (once, cached) and load the native CPU rasterizer extensions.
 
-The extension is compiled by ``torch.utils.cpp_extension.load`` at first use into
+Two extensions: the tile rasterizer (``raster.cpp`` and the per-ISA kernels) and the fused EWA
+projection (``project.cpp``). They are separate modules because each ``torch.utils.cpp_extension``
+module has one pybind11 entry point, and the projection's build stays small and independent of
+the tile kernels'. Each is compiled by ``torch.utils.cpp_extension.load`` at first use into
 ``$TORCH_EXTENSIONS_DIR`` (torch's default cache when unset); later processes reuse the cached
 build unless the sources or flags change. The whole build targets x86-64-v3 (AVX2 + FMA); the
 AVX-512 tile kernels live in their own translation unit and are only called when the CPU reports
-AVX-512 at run time.
+AVX-512 at run time. The projection is built with ``-ffp-contract=off`` so that each
+``a * b + c`` rounds twice, like the separate torch ops of ``projection.project`` it restates.
 """
 
 from __future__ import annotations
@@ -33,6 +37,27 @@ _EXTENSION = NativeExtension(
 )
 
 
+PROJECTION_EXTENSION_NAME = "sparsesplat_projection_cpu"
+"""Module name of the built projection extension."""
+PROJECTION_CFLAGS = [*CFLAGS, "-ffp-contract=off"]
+"""The rasterizer's flags without FMA contraction (float32 rounding as in the torch version)."""
+
+_PROJECTION = NativeExtension(
+    PROJECTION_EXTENSION_NAME,
+    SOURCE_DIR,
+    ("project.cpp",),
+    PROJECTION_CFLAGS,
+    on_failure=RasterError,
+    failure_hint="needs g++ with AVX2 support and ninja",
+    description="CPU projection",
+)
+
+
 def load_extension() -> ModuleType:
     """Return the compiled extension, building it on first use; RasterError on build failure."""
     return _EXTENSION.load()
+
+
+def load_projection_extension() -> ModuleType:
+    """Return the compiled projection extension (built on first use); RasterError on failure."""
+    return _PROJECTION.load()

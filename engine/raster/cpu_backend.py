@@ -1,4 +1,5 @@
-"""Native CPU backend: torch projection + the C++/OpenMP tile kernel with an analytic backward."""
+"""Native CPU backend: the fused C++ projection and the C++/OpenMP tile kernel, both with analytic
+backwards."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
-from sparsesplat.engine.raster.build import load_extension
-from sparsesplat.engine.raster.projection import project
+from sparsesplat.engine.raster.build import load_extension, load_projection_extension
+from sparsesplat.engine.raster.native_projection import project_native
 from sparsesplat.engine.raster.types import RasterOutput
 
 
@@ -73,7 +74,8 @@ def rasterize_cpu(
 ) -> RasterOutput:
     """Render float32 CPU tensors with the native kernel (see ``rasterize`` for the contract)."""
     ext = load_extension()  # build/load before any work so a build failure is the first error
-    proj = project(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)
+    load_projection_extension()
+    proj = project_native(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)
     w, h = camera.width, camera.height
     radii = proj.radii.contiguous()
     tensors = (proj.means2d, proj.conics, proj.opacities, proj.depths, features, background)
