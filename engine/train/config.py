@@ -130,6 +130,11 @@ class TrainConfig:
     rendered depth enters in units of the scene extent (scale-free, a deviation)."""
     depth_smooth_start: int = 3000
     """Smoothness applies for iterations > this."""
+    depth_empty_background: bool = False
+    """On training pixels that show the pure background colour, replace the prior by its
+    nearest value: empty space renders depth 0 (depth is not alpha-normalized), so the target
+    agrees with it there instead of asking for geometry in the void (reference: Blender sets
+    the target to 0 on pure-white pixels)."""
 
     # -- densification --------------------------------------------------------------------
     densify_from: int = 500
@@ -333,6 +338,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "soft_depth": False,
         "depth_every": 10,
         "depth_until": 6000,
+        "depth_empty_background": True,
         "error_tolerance": 0.001,
         "depth_smooth_weight": 0.0,
         "densify_grad_threshold": 0.0005,

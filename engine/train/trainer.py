@@ -96,6 +96,15 @@ def _frusta_box(scene: Scene) -> tuple[Tensor, Tensor]:
     return p.min(dim=0).values, p.max(dim=0).values
 
 
+def _empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tensor) -> Tensor:
+    """``prior`` (H, W) with the pixels where ``image`` (3, H, W) equals ``background`` to
+    within half an 8-bit step set to the prior's smallest (nearest) value elsewhere."""
+    empty = ((image - background.view(3, 1, 1)).abs() <= 0.5 / 255).all(dim=0)
+    if not bool(empty.any()) or bool(empty.all()):
+        return prior
+    return torch.where(empty, prior[~empty].min(), prior)
+
+
 class Trainer:
     """Trains one scene with one config; drive it with :meth:`run`."""
 
@@ -164,6 +173,8 @@ class Trainer:
                         f"{self.scene.train[i].name!r}, got shape {tuple(d.shape)}"
                     )
                 d = d.reshape(h, w)
+                if cfg.depth_empty_background:
+                    d = _empty_background_to_nearest(d, self.images[i], self.background)
                 self.priors.append(d)
                 # The reference's smoothness weights see the prior on a [0, 257] scale.
                 span = float(d.max() - d.min())

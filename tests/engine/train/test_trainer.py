@@ -188,3 +188,23 @@ def test_missing_priors_is_a_scene_error() -> None:
         Trainer(scene, small(), None)
     with pytest.raises(SceneError, match=r"priors\[0\]"):
         Trainer(scene, small(), [torch.zeros(5, 5)] * 3)
+
+
+def test_empty_background_pixels_get_the_nearest_prior_value() -> None:
+    seed = random.randrange(1000)
+    scene, priors = make_scene(seed=seed, background=1.0)
+    on = Trainer(scene, small(background=(1.0, 1.0, 1.0), depth_empty_background=True), priors)
+    off = Trainer(scene, small(background=(1.0, 1.0, 1.0)), priors)
+    assert on.priors is not None and off.priors is not None
+    for i, image in enumerate(on.images):
+        empty = (image >= 1.0 - 0.5 / 255).all(dim=0)
+        assert bool(empty.any()) and not bool(empty.all()), f"seed {seed}: view {i} not mixed"
+        original = off.priors[i]
+        assert torch.equal(on.priors[i][~empty], original[~empty]), f"seed {seed}"
+        assert bool((on.priors[i][empty] == original[~empty].min()).all()), f"seed {seed}"
+    # A view that is all background (nothing to anchor the value to) keeps its prior.
+    blank = make_scene(seed=seed, background=1.0, image_fill=1.0)[0]
+    t = Trainer(blank, small(background=(1.0, 1.0, 1.0), depth_empty_background=True), priors)
+    assert t.priors is not None and all(
+        torch.equal(a, b.reshape(a.shape)) for a, b in zip(t.priors, priors, strict=True)
+    )
