@@ -168,8 +168,10 @@ class TrainConfig:
     """Wall-clock seconds of training between held-out evaluations (0 disables the cadence)."""
     eval_every: int | None = None
     """Also evaluate every n iterations (deterministic cadence, mainly for tests)."""
-    eval_max_views: int | None = None
-    """Evaluate at most this many held-out views during training (all at the end)."""
+    eval_max_views: int | None = 4
+    """Evaluate at most this many held-out views during training, evenly spaced over the
+    held-out list (all of them at the end; None: all every time). Interim evaluations are
+    monitoring: on 9 LLFF views with LPIPS each costs ~10 s, 16% of a run at a 60 s cadence."""
     eval_lpips: bool = True
     """Compute LPIPS (and AVGE) when the weights are available."""
     checkpoint_interval_s: float = 600.0
@@ -223,6 +225,8 @@ class TrainConfig:
             raise ConfigError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
         if self.depth_every < 1 or self.densify_interval < 1:
             raise ConfigError("depth_every and densify_interval must be >= 1")
+        if self.eval_max_views is not None and self.eval_max_views < 1:
+            raise ConfigError(f"eval_max_views must be >= 1 or None, got {self.eval_max_views}")
         if self.background is not None and len(self.background) != 3:
             raise ConfigError(f"background must be 3 values, got {self.background!r}")
         return self

@@ -288,7 +288,11 @@ class Trainer:
 
     def evaluate(self, max_views: int | None = None) -> dict[str, float | None]:
         """Mean held-out metrics (all None when the scene has no held-out views)."""
-        views = self.scene.test if max_views is None else self.scene.test[:max_views]
+        views = self.scene.test
+        if max_views is not None and len(views) > max_views:
+            # Evenly spaced, so an interim curve samples the whole held-out trajectory.
+            picks = torch.linspace(0, len(views) - 1, max(1, max_views)).round().long()
+            views = [views[int(i)] for i in picks.unique()]
         if not views:
             return {"psnr": None, "ssim": None, "lpips": None, "avge": None}
         if not hasattr(self, "_evaluator"):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import random
@@ -21,6 +22,7 @@ from sparsesplat.engine.train import (
     load_model,
     preset,
 )
+from sparsesplat.engine.train.config import ConfigError
 
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]
@@ -208,3 +210,14 @@ def test_empty_background_pixels_get_the_nearest_prior_value() -> None:
     assert t.priors is not None and all(
         torch.equal(a, b.reshape(a.shape)) for a, b in zip(t.priors, priors, strict=True)
     )
+
+
+def test_interim_evaluation_samples_evenly_spaced_views() -> None:
+    scene, priors = make_scene(seed=random.randrange(1000), n_test=5)
+    trainer = Trainer(scene, small(), priors)
+    subset = dataclasses.replace(scene, test=[scene.test[0], scene.test[2], scene.test[4]])
+    same_model = Trainer(subset, small(), priors)
+    assert trainer.evaluate(3) == same_model.evaluate(None)
+    assert trainer.evaluate(None) != trainer.evaluate(3)
+    with pytest.raises(ConfigError, match="eval_max_views"):
+        small(eval_max_views=0)
