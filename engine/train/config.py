@@ -98,7 +98,9 @@ class TrainConfig:
 
     # -- depth regularization -------------------------------------------------------------
     depth_prior: str = "pydnet"
-    """Prior kind to compute ('pydnet', 'planesweep', 'user', ...) or 'none' for no depth loss."""
+    """Prior kind to compute ('pydnet', 'plane_sweep', 'onnx:FILE', 'user') or 'none' for no
+    depth loss. PyDNet++ is the default because it had the best AVGE of the three on DTU, LLFF
+    and Blender scenes (comparison in docs/trainer.md)."""
     hard_depth: bool = True
     """Hard-depth pass (opacity 0.95, gradients to centres only)."""
     soft_depth: bool = True
