@@ -16,18 +16,16 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.raster.build import load_projection_extension
-from sparsesplat.engine.raster.projection import Projected
+from sparsesplat.engine.raster.projection import Projected, view_frame
 
 
 def camera_params(camera: Camera, near: float, far: float, eps2d: float) -> list[float]:
     """The kernel's camera vector: centre (float64), rotation (float32 values), intrinsics, range.
 
-    The centre and rotation are formed with the same torch ops as ``projection.project`` so the
-    kernel starts from bit-identical values: ``R (m - c)`` with ``c = -R^T t`` in float64.
+    The centre and rotation come from ``projection.view_frame``, as in ``projection.project``, so
+    the kernel starts from bit-identical values: ``R (m - c)`` with ``c = -R^T t`` in float64.
     """
-    w2c = camera.world_to_camera.detach().to(device="cpu", dtype=torch.float64)
-    rot64 = w2c[:3, :3]
-    centre64 = -rot64.T @ w2c[:3, 3]
+    rot64, centre64 = (t.detach() for t in view_frame(camera))
     rot32 = rot64.to(torch.float32).to(torch.float64)
     intrinsics = [float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)]
     return [

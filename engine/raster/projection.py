@@ -51,15 +51,22 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
     return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
 
 
+def view_frame(camera: Camera, device: torch.device | str = "cpu") -> tuple[Tensor, Tensor]:
+    """The view rotation R and the camera centre c = -R^T t, both float64 on ``device``: the
+    frame in which ``R (m - c)`` is formed (shared with the native projection, so both start
+    from bit-identical values)."""
+    w2c = camera.world_to_camera.to(device=device, dtype=torch.float64)
+    rot64 = w2c[:3, :3]
+    return rot64, -rot64.T @ w2c[:3, 3]
+
+
 def _camera_space_means(means: Tensor, camera: Camera) -> tuple[Tensor, Tensor]:
     """View-space means and the view rotation, both in ``means.dtype``.
 
     ``R m + t`` is computed as ``R (m - c)`` with ``m - c`` formed in float64: far from the origin
     (1e4 units) the float32 sum ``R m + t`` would cancel catastrophically near the camera.
     """
-    w2c = camera.world_to_camera.to(device=means.device, dtype=torch.float64)
-    rot64 = w2c[:3, :3]
-    centre64 = -rot64.T @ w2c[:3, 3]
+    rot64, centre64 = view_frame(camera, means.device)
     rel = (means.to(torch.float64) - centre64).to(means.dtype)
     rot = rot64.to(means.dtype)
     return rel @ rot.T, rot
