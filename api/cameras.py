@@ -1,15 +1,40 @@
-"""The cameras file uploaded with a scene's images (``cameras.json``).
+"""The camera schemas on the wire: ``cameras.json`` (a scene's images) and one render camera.
 
 The pose convention is explicit, never guessed: ``convention`` names the camera axes and
-``pose`` says which way the matrix maps. The engine's folder loader reads the same JSON.
+``pose`` says which way the matrix maps; both are required. Every model refuses unknown fields
+and names the closest valid one ("unknown field 'convension' — did you mean 'convention'?"):
+a typo must never fall back to a default. The engine's folder loader and ``sparsesplat render
+--camera`` validate through these same models (pure pydantic, no heavy imports), so a file is
+accepted or refused identically everywhere. ``docs/cameras.md`` documents the format.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 from enum import StrEnum
+from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+CONVENTION_HINT = (
+    "say 'opencv' (+x right, +y down, +z forward: COLMAP/OpenCV) or "
+    "'opengl' (+x right, +y up, +z back: Blender/NeRF)"
+)
+"""How to fill in a missing or wrong ``convention``."""
+POSE_HINT = (
+    "say 'camera_to_world' (the camera's placement in the world: Blender/NeRF "
+    "transform_matrix, COLMAP's inverse) or 'world_to_camera' (a view/extrinsic matrix: "
+    "COLMAP images.txt)"
+)
+"""How to fill in a missing or wrong ``pose``."""
 
 
 def check_rigid_matrix(value: list[list[float]]) -> list[list[float]]:
@@ -24,7 +49,8 @@ def check_rigid_matrix(value: list[list[float]]) -> list[list[float]]:
             dot = sum(rot[k][i] * rot[k][j] for k in range(3))
             if abs(dot - (1.0 if i == j else 0.0)) > 1e-3:
                 raise ValueError(
-                    "matrix rotation block is not orthonormal (pose must be rigid)"
+                    "matrix rotation block is not orthonormal (pose must be rigid: no scale "
+                    "or shear in the 3x3 block)"
                 )
     det = (
         rot[0][0] * (rot[1][1] * rot[2][2] - rot[1][2] * rot[2][1])
@@ -39,6 +65,95 @@ def check_rigid_matrix(value: list[list[float]]) -> list[list[float]]:
     if value[3] != [0.0, 0.0, 0.0, 1.0]:
         raise ValueError("matrix last row must be [0, 0, 0, 1]")
     return value
+
+
+def _matrix_shape(value: Any) -> Any:
+    """Before numeric parsing: a 4x4 nested list, or a ValueError saying what was given."""
+    if not isinstance(value, list | tuple):
+        raise ValueError(
+            f"matrix must be 4x4 (a list of 4 rows of 4 numbers), got {type(value).__name__}"
+        )
+    rows = [r for r in value if isinstance(r, list | tuple)]
+    if len(rows) != len(value):
+        raise ValueError(
+            f"matrix must be 4x4 (a list of 4 rows of 4 numbers), got a flat list of "
+            f"{len(value)} values: nest it as 4 rows"
+        )
+    if len(rows) == 3 and all(len(r) == 4 for r in rows):
+        raise ValueError("matrix must be 4x4: add the last row [0, 0, 0, 1] to the 3x4 pose")
+    if len(rows) != 4 or any(len(r) != 4 for r in rows):
+        shape = f"{len(rows)}x{'/'.join(sorted({str(len(r)) for r in rows})) or 0}"
+        raise ValueError(f"matrix must be 4x4 (a list of 4 rows of 4 numbers), got {shape}")
+    return value
+
+
+def _relative_file(value: str, what: str) -> str:
+    """A file name inside the scene folder: relative, no '..' components, no backslashes."""
+    parts = value.replace("\\", "/").split("/")
+    if value.startswith(("/", "\\")) or ":" in parts[0] or ".." in parts:
+        raise ValueError(
+            f"{what} {value!r} must be a relative path inside the scene folder (no '..', no "
+            "absolute path)"
+        )
+    return value
+
+
+def _unknown_field_message(
+    name: str, valid: list[str], foreign: dict[str, str], elsewhere: dict[str, str]
+) -> tuple[str, str | None]:
+    """The message for an unknown field and the valid name it most likely meant (if any):
+    a foreign-format hint, the closest valid name here, or the closest name that belongs at
+    another level of the file."""
+    if name in foreign:
+        return f"unknown field {name!r} — {foreign[name]}", None
+    close = difflib.get_close_matches(name, valid, n=1, cutoff=0.6)
+    if close:
+        return f"unknown field {name!r} — did you mean {close[0]!r}?", close[0]
+    close = difflib.get_close_matches(name, list(elsewhere), n=1, cutoff=0.6)
+    if close:
+        return (
+            f"unknown field {name!r} — did you mean {close[0]!r}? (it belongs "
+            f"{elsewhere[close[0]]})",
+            None,
+        )
+    return f"unknown field {name!r} (valid fields: {', '.join(valid)})", None
+
+
+class StrictModel(BaseModel):
+    """Base of every wire camera model: unknown fields are refused, naming the closest valid
+    one; the required fields in ``REQUIRED_HINTS`` say how to fill them in when missing."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    FOREIGN_FIELDS: ClassVar[dict[str, str]] = {}
+    """Field names of other formats (Blender, COLMAP, nerfstudio) -> what to write instead."""
+    ELSEWHERE_FIELDS: ClassVar[dict[str, str]] = {}
+    """Valid names at another level of the file -> where they belong (for typo hints)."""
+    REQUIRED_HINTS: ClassVar[dict[str, str]] = {}
+    """Required field -> how to fill it in (used in the 'missing' message)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _refuse_unknown_and_name_missing(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        valid = list(cls.model_fields)
+        problems, meant = [], set()
+        for key in data:
+            if key not in cls.model_fields:
+                message, guess = _unknown_field_message(
+                    str(key), valid, cls.FOREIGN_FIELDS, cls.ELSEWHERE_FIELDS
+                )
+                problems.append(message)
+                meant.add(guess)
+        problems += [
+            f"missing {name!r}: {hint}"
+            for name, hint in cls.REQUIRED_HINTS.items()
+            if name not in data and name not in meant
+        ]
+        if problems:
+            raise ValueError("; ".join(problems))
+        return data
 
 
 class AxisConvention(StrEnum):
@@ -68,20 +183,51 @@ class Split(StrEnum):
     """Held out: scored against renders while training (error against run time)."""
 
 
-class CameraFrame(BaseModel):
+_MATRIX_FOREIGN = {
+    "transform_matrix": "did you mean 'matrix'? (Blender/NeRF 'transform_matrix' is an "
+    "OpenGL camera-to-world: put it in 'matrix' with convention 'opengl', pose "
+    "'camera_to_world')",
+    "camera_to_world": "put the 4x4 in 'matrix' and say pose 'camera_to_world'",
+    "world_to_camera": "put the 4x4 in 'matrix' and say pose 'world_to_camera'",
+    "c2w": "put the 4x4 in 'matrix' and say pose 'camera_to_world'",
+    "w2c": "put the 4x4 in 'matrix' and say pose 'world_to_camera'",
+    "pose": "'pose' (camera_to_world | world_to_camera) belongs at the top level of the file; "
+    "the 4x4 goes in 'matrix'",
+    "convention": "'convention' belongs at the top level of the file",
+    "file_path": "did you mean 'image'? (the image file name, with its suffix)",
+    "fl_x": "did you mean 'fx'?",
+    "fl_y": "did you mean 'fy'?",
+    "w": "did you mean 'width'?",
+    "h": "did you mean 'height'?",
+    "K": "give the intrinsics as 'fx', 'fy', 'cx', 'cy' (pixels)",
+    "intrinsics": "give the intrinsics as 'fx', 'fy', 'cx', 'cy' (pixels)",
+}
+
+
+class CameraFrame(StrictModel):
     """One image with its pose and pinhole intrinsics (pixels; pixel centres at +0.5)."""
 
+    FOREIGN_FIELDS: ClassVar[dict[str, str]] = _MATRIX_FOREIGN
+    ELSEWHERE_FIELDS: ClassVar[dict[str, str]] = {
+        "convention": "at the top level of the file",
+        "pose": "at the top level of the file",
+    }
+    REQUIRED_HINTS: ClassVar[dict[str, str]] = {
+        "image": "the image file name inside the scene folder",
+        "matrix": "the 4x4 pose, row-major, in the file's 'convention' and 'pose' direction",
+    }
+
     image: str = Field(min_length=1)
-    """File name of the image within the upload."""
+    """File name of the image within the upload (relative, no '..')."""
     matrix: list[list[float]]
     """4x4 rigid pose, row-major, in the file's ``convention`` and ``pose`` direction."""
-    fx: float = Field(gt=0)
+    fx: float = Field(gt=0, allow_inf_nan=False)
     """Focal length along x in pixels."""
-    fy: float = Field(gt=0)
+    fy: float = Field(gt=0, allow_inf_nan=False)
     """Focal length along y in pixels."""
-    cx: float
-    """Principal point x in pixels."""
-    cy: float
+    cx: float = Field(allow_inf_nan=False)
+    """Principal point x in pixels (pixel centres at +0.5; the image centre is width / 2)."""
+    cy: float = Field(allow_inf_nan=False)
     """Principal point y in pixels."""
     width: int | None = Field(default=None, gt=0)
     """Image width in pixels; checked against the image when given."""
@@ -89,26 +235,55 @@ class CameraFrame(BaseModel):
     """Image height in pixels; checked against the image when given."""
     depth: str | None = None
     """Optional depth map file (float ``.npy`` in scene units or 16-bit ``.png``)."""
-    depth_scale: float | None = Field(default=None, gt=0)
+    depth_scale: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     """Divisor turning integer depth PNG values into scene units (e.g. 1000 for millimetres);
     overrides the file-level ``depth_scale``."""
     split: Split = Split.train
     """Whether the frame is a training or a held-out view."""
+
+    @field_validator("matrix", mode="before")
+    @classmethod
+    def _check_matrix_shape(cls, value: Any) -> Any:
+        return _matrix_shape(value)
 
     @field_validator("matrix")
     @classmethod
     def _check_matrix(cls, value: list[list[float]]) -> list[list[float]]:
         return check_rigid_matrix(value)
 
+    @field_validator("image")
+    @classmethod
+    def _check_image(cls, value: str) -> str:
+        return _relative_file(value, "image")
 
-class CamerasFile(BaseModel):
-    """Contents of ``cameras.json``."""
+    @field_validator("depth")
+    @classmethod
+    def _check_depth(cls, value: str | None) -> str | None:
+        return None if value is None else _relative_file(value, "depth")
 
-    convention: AxisConvention = AxisConvention.opencv
-    """Camera axes the matrices use."""
-    pose: PoseDirection = PoseDirection.camera_to_world
-    """Direction of every matrix."""
-    depth_scale: float = Field(default=1.0, gt=0)
+
+class CamerasFile(StrictModel):
+    """Contents of ``cameras.json``: the pose convention, then one frame per image."""
+
+    FOREIGN_FIELDS: ClassVar[dict[str, str]] = {
+        "camera_angle_x": "give per-frame 'fx'/'fy' in pixels: fx = 0.5 * width / "
+        "tan(0.5 * camera_angle_x) (see docs/cameras.md)",
+        "transform": "did you mean 'pose'? (camera_to_world | world_to_camera)",
+    }
+    ELSEWHERE_FIELDS: ClassVar[dict[str, str]] = {
+        name: "in each frame" for name in ("image", "matrix", "split", "width", "height", "depth")
+    }
+    REQUIRED_HINTS: ClassVar[dict[str, str]] = {
+        "convention": CONVENTION_HINT,
+        "pose": POSE_HINT,
+        "frames": "the list of images with their 'matrix' and intrinsics",
+    }
+
+    convention: AxisConvention
+    """Camera axes the matrices use (required: ``opencv`` or ``opengl``)."""
+    pose: PoseDirection
+    """Direction of every matrix (required: ``camera_to_world`` or ``world_to_camera``)."""
+    depth_scale: float = Field(default=1.0, gt=0, allow_inf_nan=False)
     """Divisor turning integer depth PNG values into scene units, for every frame."""
     frames: list[CameraFrame] = Field(min_length=1)
     """The images, in any order."""
@@ -121,20 +296,28 @@ class CamerasFile(BaseModel):
             raise ValueError(f"image listed more than once: {', '.join(duplicates)}")
         n_train = sum(f.split == Split.train for f in self.frames)
         if n_train < 2:
-            raise ValueError(f"need at least 2 training views, got {n_train}")
+            raise ValueError(f"need at least 2 training views (split 'train'), got {n_train}")
         return self
 
 
-class PinholeCamera(BaseModel):
+class PinholeCamera(StrictModel):
     """One camera to render from: explicit pose convention, intrinsics and image size.
 
     ``convention`` and ``pose`` are required: a silent default is the most common pose bug.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    FOREIGN_FIELDS: ClassVar[dict[str, str]] = {
+        k: v for k, v in _MATRIX_FOREIGN.items() if k not in ("pose", "convention")
+    }
+    REQUIRED_HINTS: ClassVar[dict[str, str]] = {
+        "convention": CONVENTION_HINT,
+        "pose": POSE_HINT,
+        "matrix": "the 4x4 pose, row-major, in 'convention' axes and 'pose' direction",
+    }
 
     convention: AxisConvention
-    """Camera axes of ``matrix``: ``opencv`` (+y down, +z forward) or ``opengl`` (+y up, +z back)."""
+    """Camera axes of ``matrix``: ``opencv`` (+y down, +z forward) or ``opengl`` (+y up,
+    +z back)."""
     pose: PoseDirection
     """``camera_to_world`` (the camera's placement) or ``world_to_camera`` (a view matrix)."""
     matrix: list[list[float]]
@@ -152,6 +335,11 @@ class PinholeCamera(BaseModel):
     height: int = Field(gt=0)
     """Image height in pixels."""
 
+    @field_validator("matrix", mode="before")
+    @classmethod
+    def _check_matrix_shape(cls, value: Any) -> Any:
+        return _matrix_shape(value)
+
     @field_validator("matrix")
     @classmethod
     def _check_matrix(cls, value: list[list[float]]) -> list[list[float]]:
@@ -159,13 +347,21 @@ class PinholeCamera(BaseModel):
 
     def world_to_camera_opencv(self) -> list[list[float]]:
         """The pose as the engine uses it: world-to-camera in OpenCV axes (row-major 4x4)."""
-        m = [list(row) for row in self.matrix]
-        if self.pose == PoseDirection.camera_to_world:
-            m = rigid_inverse(m)
-        if self.convention == AxisConvention.opengl:
-            # World-to-camera in OpenGL axes -> OpenCV axes: negate the camera's y and z rows.
-            m = [m[0], [-x for x in m[1]], [-x for x in m[2]], m[3]]
-        return m
+        return to_world_to_camera_opencv(self.matrix, self.convention, self.pose)
+
+
+def to_world_to_camera_opencv(
+    matrix: list[list[float]], convention: AxisConvention | str, pose: PoseDirection | str
+) -> list[list[float]]:
+    """A validated 4x4 in ``convention`` axes and ``pose`` direction -> world-to-camera in
+    OpenCV axes (the engine's convention), row-major, pure Python."""
+    m = [list(row) for row in matrix]
+    if PoseDirection(pose) == PoseDirection.camera_to_world:
+        m = rigid_inverse(m)
+    if AxisConvention(convention) == AxisConvention.opengl:
+        # World-to-camera in OpenGL axes -> OpenCV axes: negate the camera's y and z rows.
+        m = [m[0], [-x for x in m[1]], [-x for x in m[2]], m[3]]
+    return m
 
 
 def rigid_inverse(m: list[list[float]]) -> list[list[float]]:
@@ -173,3 +369,44 @@ def rigid_inverse(m: list[list[float]]) -> list[list[float]]:
     rt = [[m[j][i] for j in range(3)] for i in range(3)]
     t = [-sum(rt[i][k] * m[k][3] for k in range(3)) for i in range(3)]
     return [rt[0] + [t[0]], rt[1] + [t[1]], rt[2] + [t[2]], [0.0, 0.0, 0.0, 1.0]]
+
+
+def _where(loc: list[Any], data: Any) -> str:
+    """``frames[2] (r_2.png).matrix`` for a pydantic error location."""
+    where = ""
+    for i, part in enumerate(loc):
+        if isinstance(part, int):
+            where += f"[{part}]"
+            frames = data.get("frames") if isinstance(data, dict) else None
+            if i == 1 and loc[0] == "frames" and isinstance(frames, list) and part < len(frames):
+                frame = frames[part]
+                if isinstance(frame, dict) and isinstance(frame.get("image"), str):
+                    where += f" ({frame['image']})"
+        else:
+            where += ("." if where else "") + str(part)
+    return where
+
+
+def describe_validation_error(exc: ValidationError, data: Any = None) -> str:
+    """A readable one-problem-per-line text for a cameras ValidationError.
+
+    Each line is ``where: problem``; ``where`` names the frame by index and image file when
+    ``data`` (the parsed JSON that failed) is given, e.g. ``frames[2] (r_2.png).matrix``."""
+    lines = []
+    for err in exc.errors(include_url=False):
+        loc = list(err.get("loc", ()))
+        msg = str(err.get("msg", ""))
+        kind = err.get("type")
+        if msg.startswith("Value error, "):
+            msg = msg[len("Value error, ") :]
+        elif kind == "missing" and loc:
+            msg, loc = f"missing {loc[-1]!r}", loc[:-1]
+        elif kind == "extra_forbidden" and loc:
+            msg, loc = f"unknown field {loc[-1]!r}", loc[:-1]
+        elif kind == "enum":
+            msg = f"{msg}, got {err.get('input')!r}"
+        elif "input" in err and kind not in ("model_type", "list_type", "dict_type"):
+            msg = f"{msg} (got {err['input']!r})"
+        where = _where(loc, data)
+        lines.append(f"{where}: {msg}" if where else msg)
+    return "\n".join(lines)

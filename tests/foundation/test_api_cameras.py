@@ -10,6 +10,9 @@ from pydantic import ValidationError
 
 from sparsesplat.api.cameras import CamerasFile
 
+POSE = {"convention": "opencv", "pose": "camera_to_world"}
+"""Required on the wire: no default convention or pose direction."""
+
 
 def _rotation(seed: int) -> list[list[float]]:
     """A random proper rotation from a random unit quaternion."""
@@ -40,7 +43,11 @@ def _frame(name: str, seed: int, **changes: object) -> dict:
 
 def test_valid_file_parses() -> None:
     seed = random.randrange(1 << 30)
-    data = {"convention": "opengl", "frames": [_frame("a.png", seed), _frame("b.png", seed + 1)]}
+    data = {
+        **POSE,
+        "convention": "opengl",
+        "frames": [_frame("a.png", seed), _frame("b.png", seed + 1)],
+    }
     parsed = CamerasFile.model_validate(data)
     assert parsed.convention == "opengl" and len(parsed.frames) == 2, f"seed {seed}"
 
@@ -55,7 +62,7 @@ def test_valid_file_parses() -> None:
     ],
 )
 def test_bad_frames_are_named(change: dict, needle: str) -> None:
-    data = {"frames": [_frame("a.png", 1, **change), _frame("b.png", 2)]}
+    data = {**POSE, "frames": [_frame("a.png", 1, **change), _frame("b.png", 2)]}
     with pytest.raises(ValidationError) as info:
         CamerasFile.model_validate(data)
     assert needle in str(info.value)
@@ -64,7 +71,7 @@ def test_bad_frames_are_named(change: dict, needle: str) -> None:
 def test_needs_two_training_views_and_unique_names() -> None:
     with pytest.raises(ValidationError, match="at least 2 training views"):
         CamerasFile.model_validate(
-            {"frames": [_frame("a.png", 1), _frame("b.png", 2, split="test")]}
+            {**POSE, "frames": [_frame("a.png", 1), _frame("b.png", 2, split="test")]}
         )
     with pytest.raises(ValidationError, match=r"more than once: a\.png"):
-        CamerasFile.model_validate({"frames": [_frame("a.png", 1), _frame("a.png", 2)]})
+        CamerasFile.model_validate({**POSE, "frames": [_frame("a.png", 1), _frame("a.png", 2)]})
