@@ -49,8 +49,8 @@ def check_rigid_matrix(value: list[list[float]]) -> list[list[float]]:
             dot = sum(rot[k][i] * rot[k][j] for k in range(3))
             if abs(dot - (1.0 if i == j else 0.0)) > 1e-3:
                 raise ValueError(
-                    "matrix rotation block is not orthonormal (pose must be rigid: no scale "
-                    "or shear in the 3x3 block)"
+                    "matrix is not rigid: its rotation block is not orthonormal (no scale or "
+                    "shear allowed in the 3x3 block)"
                 )
     det = (
         rot[0][0] * (rot[1][1] * rot[2][2] - rot[1][2] * rot[2][1])

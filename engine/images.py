@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,28 +27,40 @@ def _open(path: Path) -> Image.Image:
         raise SceneError(f"{path}: cannot read image ({exc})") from exc
 
 
-def read_rgb(path: str | Path, background: tuple[float, float, float] | None = None) -> np.ndarray:
-    """Read an 8/16-bit image as (H, W, 3) float32 in [0, 1].
-
-    With ``background``, an alpha channel is composited onto it (straight alpha:
-    rgb * a + bg * (1 - a)); without it, alpha is dropped.
-    """
+def read_rgba(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read an 8/16-bit image as (H, W, 3) float32 RGB in [0, 1] (straight, not composited)
+    and its (H, W) float32 alpha in [0, 1], or None when the file has no alpha channel."""
     path = Path(path)
     img = _open(path)
     if img.mode in ("I;16", "I;16B", "I", "F"):
         arr = np.asarray(img, dtype=np.float32)
         arr = arr / (65535.0 if img.mode != "F" else max(float(arr.max()), 1.0))
-        return np.repeat(arr[..., None], 3, axis=2)
+        return np.ascontiguousarray(np.repeat(arr[..., None], 3, axis=2)), None
     has_alpha = img.mode in ("RGBA", "LA", "PA") or "transparency" in img.info
     img = img.convert("RGBA" if has_alpha else "RGB")
     arr = np.asarray(img, dtype=np.float32) / 255.0
-    if has_alpha:
-        rgb, alpha = arr[..., :3], arr[..., 3:4]
-        if background is not None:
-            bg = np.asarray(background, dtype=np.float32).reshape(1, 1, 3)
-            rgb = rgb * alpha + bg * (1.0 - alpha)
-        arr = rgb
-    return np.ascontiguousarray(arr)
+    if not has_alpha:
+        return np.ascontiguousarray(arr), None
+    return np.ascontiguousarray(arr[..., :3]), np.ascontiguousarray(arr[..., 3])
+
+
+def composite(rgb: np.ndarray, alpha: np.ndarray | None, background: Sequence[float]) -> np.ndarray:
+    """``rgb * alpha + background * (1 - alpha)`` (straight alpha); ``rgb`` when no alpha."""
+    if alpha is None:
+        return rgb
+    bg = np.asarray(background, dtype=np.float32).reshape(1, 1, 3)
+    a = alpha[..., None]
+    return np.ascontiguousarray(rgb * a + bg * (1.0 - a), dtype=np.float32)
+
+
+def read_rgb(path: str | Path, background: Sequence[float] | None = None) -> np.ndarray:
+    """Read an 8/16-bit image as (H, W, 3) float32 in [0, 1].
+
+    With ``background``, an alpha channel is composited onto it (straight alpha:
+    rgb * a + bg * (1 - a)); without it, alpha is dropped.
+    """
+    rgb, alpha = read_rgba(path)
+    return rgb if background is None else composite(rgb, alpha, background)
 
 
 def read_mask(path: str | Path) -> np.ndarray:

@@ -24,6 +24,9 @@ class View:
     """(H, W) bool object mask where the format provides one (DTU), else None."""
     depth: Tensor | None = None
     """(H, W) float32 user-supplied depth map (view-space z) where one was uploaded, else None."""
+    alpha: Tensor | None = None
+    """(H, W) float32 alpha of the source image where it had one (``image`` is composited on
+    the scene background with it, so the background can be changed exactly), else None."""
 
 
 @dataclass

@@ -2,19 +2,38 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import project, undistort_image
 from sparsesplat.engine.errors import SceneError
-from sparsesplat.engine.images import read_mask, read_rgb, resize
-from sparsesplat.engine.scene import View
+from sparsesplat.engine.images import composite, read_mask, read_rgba, resize
+from sparsesplat.engine.scene import Scene, View
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
+WHITE = (1.0, 1.0, 1.0)
+BLACK = (0.0, 0.0, 0.0)
+
+
+MIN_IMAGE_SIDE = 16
+"""Smallest image side (pixels) a scene may have: LPIPS-VGG pools four times (16 -> 1) and
+SSIM's 11-pixel window and the depth patches need some room; smaller images fail later with
+errors that name the wrong cause."""
+
+
+def check_image_size(width: int, height: int, source: str) -> None:
+    """Raise SceneError unless both sides are at least :data:`MIN_IMAGE_SIDE` pixels."""
+    if min(width, height) < MIN_IMAGE_SIDE:
+        raise SceneError(
+            f"{source}: image is {width}x{height} pixels; at least "
+            f"{MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} is needed (SSIM/LPIPS windows, depth patches)"
+        )
 
 
 def load_view(
@@ -28,10 +47,10 @@ def load_view(
     depth_source: Path | None = None,
     distortion: tuple[float, ...] | None = None,
 ) -> View:
-    """Read one image (composited on ``background``), check its size against the intrinsics,
-    remove lens ``distortion`` (OpenCV k1, k2, p1, p2) if given, optionally shrink it by the
-    integer ``downscale`` and attach a mask / user depth."""
-    image = read_rgb(image_path, background=tuple(background))  # type: ignore[arg-type]
+    """Read one image (composited on ``background``; its alpha kept on the view), check its
+    size against the intrinsics, remove lens ``distortion`` (OpenCV k1, k2, p1, p2) if given,
+    optionally shrink it by the integer ``downscale`` and attach a mask / user depth."""
+    image, alpha = read_rgba(image_path)
     h, w = image.shape[:2]
     if (w, h) != (camera.width, camera.height):
         raise SceneError(
@@ -40,6 +59,9 @@ def load_view(
         )
     if distortion is not None and any(distortion):
         image = undistort_image(image, camera.fx, camera.fy, camera.cx, camera.cy, distortion)
+        if alpha is not None:
+            k = (camera.fx, camera.fy, camera.cx, camera.cy)
+            alpha = undistort_image(alpha[..., None], *k, distortion)[..., 0]
     mask = read_mask(mask_path) if mask_path is not None else None
     if mask is not None and mask.shape != (h, w):
         raise SceneError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, image {w}x{h}")
@@ -50,17 +72,69 @@ def load_view(
     if downscale != 1:
         camera = camera.scaled(1.0 / downscale)
         size = (camera.width, camera.height)
-        image = resize(image, size)
+        if alpha is not None:
+            # Shrink in premultiplied alpha so transparent pixels' colours do not bleed in.
+            premult = resize(image * alpha[..., None], size)
+            alpha = resize(alpha, size)
+            image = premult / np.maximum(alpha, 1e-6)[..., None]
+            image = np.clip(image, 0.0, 1.0).astype(np.float32)
+        else:
+            image = resize(image, size)
         if mask is not None:
             mask = resize(mask.astype(np.float32), size) >= 0.5
         if depth is not None:
             depth = resize(depth, size, nearest=True)
+    check_image_size(camera.width, camera.height, str(image_path))
+    image = composite(image, alpha, background)
     return View(
         name=name,
         image=torch.from_numpy(np.ascontiguousarray(image)),
         camera=camera,
         mask=torch.from_numpy(mask) if mask is not None else None,
         depth=torch.from_numpy(depth.astype(np.float32)) if depth is not None else None,
+        alpha=torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32))
+        if alpha is not None
+        else None,
+    )
+
+
+def has_alpha(scene: Scene) -> bool:
+    """Whether any view of ``scene`` came from an image with an alpha channel."""
+    return any(v.alpha is not None for v in scene.train + scene.test)
+
+
+def default_background(views: Sequence[View], fallback: Sequence[float]) -> tuple[float, ...]:
+    """The background for images with alpha: white (the object-capture convention of
+    NeRF-synthetic and most cut-out captures: dark objects stay visible and an empty model
+    cannot score well by rendering nothing), else ``fallback`` (the format's)."""
+    if any(v.alpha is not None for v in views):
+        return WHITE
+    return tuple(float(c) for c in fallback)
+
+
+def recomposite(view: View, old: Tensor, new: Tensor) -> View:
+    """``view`` with its image moved from background ``old`` to ``new`` (exact for straight
+    alpha: image + (new - old) * (1 - alpha)); views without alpha are returned unchanged."""
+    if view.alpha is None or torch.equal(old, new):
+        return view
+    a = view.alpha.to(view.image.dtype)[..., None]
+    delta = (new - old).to(view.image.dtype).view(1, 1, 3)
+    image = (view.image + delta * (1.0 - a)).clamp(0.0, 1.0).contiguous()
+    return dataclasses.replace(view, image=image)
+
+
+def with_background(scene: Scene, background: Sequence[float] | Tensor) -> Scene:
+    """``scene`` with every image that has alpha composited on ``background`` and
+    ``scene.background`` set to it: targets and renders share one background."""
+    new = torch.as_tensor(background, dtype=torch.float32).reshape(3)
+    old = scene.background.float().reshape(3)
+    if torch.equal(old, new):
+        return scene
+    return dataclasses.replace(
+        scene,
+        train=[recomposite(v, old, new) for v in scene.train],
+        test=[recomposite(v, old, new) for v in scene.test],
+        background=new,
     )
 
 
@@ -74,16 +148,9 @@ def check_downscale(downscale: int, source: str) -> int:
 def look_at_bounds(cameras: Sequence[Camera]) -> tuple[float, float]:
     """Near/far for formats without bounds: the point closest (least squares) to all optical
     axes is taken as the scene centre; near = 0.2x and far = 3x its nearest/farthest depth.
-    Wide on purpose: priors sweep this range and must not clip the object."""
-    a = np.zeros((3, 3))
-    b = np.zeros(3)
-    for cam in cameras:
-        c2w = cam.camera_to_world.double().numpy()
-        d, o = c2w[:3, 2], c2w[:3, 3]
-        proj = np.eye(3) - np.outer(d, d)
-        a += proj
-        b += proj @ o
-    centre = np.linalg.lstsq(a, b, rcond=None)[0]
+    Wide on purpose: priors sweep this range and must not clip the object. Cameras that see
+    the centre from behind (parallel or diverging axes) fall back to the baseline scale."""
+    centre = _axes_point(cameras)
     depths = []
     for cam in cameras:
         w2c = cam.world_to_camera.double().numpy()
@@ -96,20 +163,13 @@ def look_at_bounds(cameras: Sequence[Camera]) -> tuple[float, float]:
     return 0.2 * min(positive), 3.0 * max(positive)
 
 
-def covisible_box(
-    cameras: Sequence[Camera],
-    near: Sequence[float],
-    far: Sequence[float],
-    samples: int = 4096,
-    seed: int = 0,
-) -> Box:
-    """Box around the region seen by at least two of ``cameras`` between their near/far
-    (inverse-depth sampling), from the 2nd-98th percentiles of such points per axis.
-
-    This is the stand-in for DNGaussian's box from the COLMAP points (not shipped here)."""
+def _frustum_samples(
+    cameras: Sequence[Camera], near: Sequence[float], far: Sequence[float], samples: int, seed: int
+) -> tuple[list[Tensor], list[Tensor]]:
+    """Per camera: ``samples`` world points drawn in its frustum between near and far
+    (inverse-depth sampling), and how many of the cameras (itself included) see each point."""
     gen = torch.Generator().manual_seed(seed)
-    kept = []
-    allpts = []
+    points, seen_by = [], []
     for i, cam in enumerate(cameras):
         u = torch.rand(samples, generator=gen, dtype=torch.float64) * cam.width
         v = torch.rand(samples, generator=gen, dtype=torch.float64) * cam.height
@@ -131,11 +191,137 @@ def covisible_box(
                 & (uv[:, 1] < other.height)
             )
             seen += inside.int()
-        kept.append(pts[seen >= 2])
-        allpts.append(pts)
-    pts = torch.cat(kept)
+        points.append(pts)
+        seen_by.append(seen)
+    return points, seen_by
+
+
+def covisible_box(
+    cameras: Sequence[Camera],
+    near: Sequence[float],
+    far: Sequence[float],
+    samples: int = 4096,
+    seed: int = 0,
+) -> Box:
+    """Box around the region seen by at least two of ``cameras`` between their near/far
+    (inverse-depth sampling), from the 2nd-98th percentiles of such points per axis.
+
+    This is the stand-in for DNGaussian's box from the COLMAP points (not shipped here)."""
+    points, seen_by = _frustum_samples(cameras, near, far, samples, seed)
+    pts = torch.cat([p[s >= 2] for p, s in zip(points, seen_by, strict=True)])
     if pts.shape[0] < 100:
-        pts = torch.cat(allpts)
+        pts = torch.cat(points)
     lo = torch.quantile(pts, 0.02, dim=0).tolist()
     hi = torch.quantile(pts, 0.98, dim=0).tolist()
     return ((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+
+
+def check_overlap(
+    cameras: Sequence[Camera],
+    names: Sequence[str],
+    near: float,
+    far: float,
+    source: str,
+    samples: int = 1024,
+) -> list[str]:
+    """Raise SceneError when no camera sees anything another camera sees between ``near`` and
+    ``far`` (cameras facing away from each other: usually a wrong ``convention`` or ``pose``);
+    return the names of cameras that share nothing with the others (the caller warns)."""
+    n = len(cameras)
+    _, seen_by = _frustum_samples(cameras, [near] * n, [far] * n, samples, seed=1)
+    shared = [float((s >= 2).float().mean()) for s in seen_by]
+    if max(shared) == 0.0:
+        raise SceneError(
+            f"{source}: no two cameras see a common region (each faces away from the others). "
+            "Check 'convention' (opencv: +z forward; opengl: +z back) and 'pose' "
+            "(camera_to_world vs world_to_camera): a matrix read the wrong way looks backwards"
+        )
+    return [name for name, f in zip(names, shared, strict=True) if f == 0.0]
+
+
+FORWARD_FACING_MAX_SPREAD_DEG = 30.0
+"""A capture whose viewing directions all lie within this angle of their mean direction is
+forward-facing (LLFF-style); a wider spread with the optical axes converging in front of every
+camera is inward-looking (an orbit around an object)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraLayout:
+    """How a set of cameras is arranged (scale-free figures)."""
+
+    kind: str
+    """'forward-facing' or 'inward-looking'."""
+    spread_deg: float
+    """Largest angle between a camera's viewing direction and the mean viewing direction."""
+    converges: bool
+    """Whether the point nearest all optical axes lies in front of every camera."""
+
+    def describe(self) -> str:
+        """One phrase for messages, e.g. 'inward-looking (view directions spread 42°)'."""
+        return f"{self.kind} (view directions within {self.spread_deg:.0f}° of their mean)"
+
+
+def _axes_point(cameras: Sequence[Camera]) -> np.ndarray:
+    """Least-squares point closest to every optical axis."""
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for cam in cameras:
+        c2w = cam.camera_to_world.double().numpy()
+        d, o = c2w[:3, 2], c2w[:3, 3]
+        proj = np.eye(3) - np.outer(d, d)
+        a += proj
+        b += proj @ o
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def camera_layout(cameras: Sequence[Camera]) -> CameraLayout:
+    """Classify ``cameras`` as forward-facing or inward-looking (see
+    :data:`FORWARD_FACING_MAX_SPREAD_DEG`)."""
+    dirs = np.stack([c.camera_to_world.double().numpy()[:3, 2] for c in cameras])
+    mean = dirs.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    if norm < 1e-6:  # directions cancel out: cameras all around an object
+        spread = 180.0
+    else:
+        cos = np.clip(dirs @ (mean / norm), -1.0, 1.0)
+        spread = float(np.degrees(np.arccos(cos)).max())
+    point = _axes_point(cameras)
+    depths = []
+    for cam in cameras:
+        w2c = cam.world_to_camera.double().numpy()
+        depths.append(float((w2c[:3, :3] @ point + w2c[:3, 3])[2]))
+    converges = all(d > 0 for d in depths)
+    kind = (
+        "inward-looking"
+        if spread > FORWARD_FACING_MAX_SPREAD_DEG and converges
+        else "forward-facing"
+    )
+    return CameraLayout(kind, spread, converges)
+
+
+def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], source: str) -> None:
+    """Raise SceneError naming the frame when a camera centre is absurd: beyond 1e12 (float32
+    arithmetic on it is meaningless) or 1e4x farther from the other cameras than they are from
+    each other (a typo or a matrix in other units)."""
+    centres = np.stack([c.camera_to_world.double().numpy()[:3, 3] for c in cameras])
+    w2c_t = np.stack([c.world_to_camera.double().numpy()[:3, 3] for c in cameras])
+    for i, name in enumerate(names):
+        size = max(float(np.abs(centres[i]).max()), float(np.abs(w2c_t[i]).max()))
+        if not np.isfinite(size) or size > 1e12:
+            raise SceneError(
+                f"{source}: frame {name!r}: camera translation {size:.3g} is too large "
+                "(beyond 1e12): rescale the scene or check the matrix"
+            )
+    if len(cameras) < 3:
+        return
+    median = np.median(centres, axis=0)
+    dist = np.linalg.norm(centres - median, axis=1)
+    typical = float(np.median(dist))
+    if typical <= 0:
+        return
+    for i, name in enumerate(names):
+        if dist[i] > 1e4 * typical:
+            raise SceneError(
+                f"{source}: frame {name!r}: camera is {dist[i]:.3g} from the others, which are "
+                f"about {typical:.3g} apart: a typo in its translation or a different unit?"
+            )

@@ -1,138 +1,165 @@
-"""The service's upload layout: a folder of images plus ``cameras.json`` (API schema)."""
+"""The service's upload layout: a folder of images plus ``cameras.json``.
+
+``cameras.json`` is validated by the wire schema itself (:class:`sparsesplat.api.cameras.
+CamerasFile`), so the folder loader and the HTTP service accept and refuse exactly the same
+files, with the same messages (docs/cameras.md)."""
 
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
+from pydantic import ValidationError
 
-from sparsesplat.engine.camera import Camera
-from sparsesplat.engine.camera_convert import (
-    check_intrinsics,
-    w2c_from_opencv_c2w,
-    w2c_from_opencv_w2c,
-    w2c_from_opengl_c2w,
-    w2c_from_opengl_w2c,
+from sparsesplat.api.cameras import (
+    CameraFrame,
+    CamerasFile,
+    Split,
+    describe_validation_error,
+    to_world_to_camera_opencv,
 )
-from sparsesplat.engine.datasets.common import covisible_box, load_view, look_at_bounds
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.datasets.common import (
+    BLACK,
+    check_camera_positions,
+    check_image_size,
+    check_overlap,
+    covisible_box,
+    default_background,
+    load_view,
+    look_at_bounds,
+    recomposite,
+)
 from sparsesplat.engine.datasets.splits import check_view_count
-from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.images import image_size, read_depth
 from sparsesplat.engine.scene import Scene, View
 
+log = logging.getLogger(__name__)
+
 CAMERAS_FILE = "cameras.json"
-CONVERTERS = {
-    ("opencv", "camera_to_world"): w2c_from_opencv_c2w,
-    ("opencv", "world_to_camera"): w2c_from_opencv_w2c,
-    ("opengl", "camera_to_world"): w2c_from_opengl_c2w,
-    ("opengl", "world_to_camera"): w2c_from_opengl_w2c,
-}
-"""(convention, pose) -> converter to the internal world-to-camera."""
+"""Name of the cameras file inside an upload folder."""
 
 
-def _frame_camera(root: Path, frame: dict[str, Any], converter: Any, source: str) -> Camera:
-    image = root / str(frame.get("image", ""))
-    if "image" not in frame:
-        raise SceneError(f"{source}: frame without 'image'")
+def read_cameras_file(path: Path) -> CamerasFile:
+    """Parse and validate ``cameras.json``; SceneError naming the file and every problem."""
+    if not path.is_file():
+        raise SceneError(f"{path}: file not found")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise SceneError(f"{path}: cannot parse JSON ({exc})") from exc
+    try:
+        return CamerasFile.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(f"{path}: {describe_validation_error(exc, data)}") from exc
+
+
+def _frame_camera(root: Path, frame: CameraFrame, meta: CamerasFile, source: str) -> Camera:
+    """The engine camera of one validated frame (image size read from the file header)."""
+    image = root / frame.image
     width, height = image_size(image)
-    expect = (frame.get("width", width), frame.get("height", height))
+    expect = (frame.width or width, frame.height or height)
     if expect != (width, height):
         raise SceneError(
             f"{image}: image is {width}x{height} but {CAMERAS_FILE} says {expect[0]}x{expect[1]}"
         )
-    try:
-        fx, fy = float(frame["fx"]), float(frame["fy"])
-        cx, cy = float(frame.get("cx", width / 2.0)), float(frame.get("cy", height / 2.0))
-    except KeyError as exc:
-        raise SceneError(f"{source} ({frame['image']}): missing {exc.args[0]!r}") from exc
-    except (TypeError, ValueError) as exc:
-        raise SceneError(f"{source} ({frame['image']}): bad intrinsics ({exc})") from exc
-    try:
-        check_intrinsics(fx, fy, cx, cy, f"{source} ({frame['image']})")
-        w2c = converter(frame.get("matrix"), f"{source} ({frame['image']})")
-    except CameraError as exc:
-        raise SceneError(str(exc)) from exc
-    return Camera(w2c, fx, fy, cx, cy, width, height)
+    check_image_size(width, height, str(image))
+    w2c = to_world_to_camera_opencv(frame.matrix, meta.convention, meta.pose)
+    return Camera(
+        torch.tensor(w2c, dtype=torch.float64).float(),
+        frame.fx,
+        frame.fy,
+        frame.cx,
+        frame.cy,
+        width,
+        height,
+    )
+
+
+def _user_depth(root: Path, frame: CameraFrame, meta: CamerasFile) -> tuple[np.ndarray, Path]:
+    """A frame's depth map in scene units (integer PNGs divided by ``depth_scale``)."""
+    assert frame.depth is not None
+    path = root / frame.depth
+    depth = read_depth(path)
+    if not np.all(np.isfinite(depth)):
+        raise SceneError(f"{path}: depth contains NaN or inf")
+    scale = frame.depth_scale if frame.depth_scale is not None else meta.depth_scale
+    return depth / scale, path
 
 
 def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Scene:
     """Load an upload folder. Frames marked ``split: test`` are held out; of the training
     frames, ``views`` (default all) are taken evenly in file order. User depth maps are
     attached to their views as ``View.depth`` (divided by the optional ``depth_scale``, per
-    frame or top level, e.g. 1000 for millimetre PNGs; 0 = no depth)."""
+    frame or top level, e.g. 1000 for millimetre PNGs).
+
+    Images with an alpha channel are composited on white (the scene background), without
+    alpha the background is black; the trainer re-composites on its configured background."""
     path = root / CAMERAS_FILE
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise SceneError(f"{path}: cannot parse JSON ({exc})") from exc
-    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
-        raise SceneError(f"{path}: expected an object with a 'frames' list")
-    key = (meta.get("convention", "opencv"), meta.get("pose", "camera_to_world"))
-    if key not in CONVERTERS:
-        raise SceneError(
-            f"{path}: unknown convention/pose {key}; expected convention opencv|opengl and "
-            "pose camera_to_world|world_to_camera"
-        )
-    frames = meta["frames"]
-    splits = [str(f.get("split", "train")) for f in frames]
-    bad = [s for s in splits if s not in ("train", "test")]
-    if bad:
-        raise SceneError(f"{path}: split must be 'train' or 'test', got {bad[0]!r}")
-    pool = [i for i, s in enumerate(splits) if s == "train"]
-    test_idx = [i for i, s in enumerate(splits) if s == "test"]
+    meta = read_cameras_file(path)
+    frames = meta.frames
+    pool = [i for i, f in enumerate(frames) if f.split == Split.train]
+    test_idx = [i for i, f in enumerate(frames) if f.split == Split.test]
     count = len(pool) if views is None else views
     check_view_count(count, len(pool), str(path))
     train_idx = [pool[round(float(k))] for k in np.linspace(0, len(pool) - 1, count)]
-    cameras = {
-        i: _frame_camera(root, frames[i], CONVERTERS[key], str(path)) for i in train_idx + test_idx
-    }
+    cameras = {i: _frame_camera(root, frames[i], meta, str(path)) for i in train_idx + test_idx}
+    train_cams = [cameras[i] for i in train_idx]
+    train_names = [frames[i].image for i in train_idx]
+    all_idx = train_idx + test_idx
+    check_camera_positions(
+        [cameras[i] for i in all_idx], [frames[i].image for i in all_idx], str(path)
+    )
 
-    def view(i: int) -> View:
+    def view(i: int, background: tuple[float, ...]) -> View:
         frame = frames[i]
         depth = depth_path = None
-        if frame.get("depth"):
-            depth_path = root / str(frame["depth"])
-            depth = read_depth(depth_path)
-            if not np.all(np.isfinite(depth)):
-                raise SceneError(f"{depth_path}: depth contains NaN or inf")
-            # Integer PNG depth (e.g. millimetres) -> scene units: divide by depth_scale.
-            scale = frame.get("depth_scale", meta.get("depth_scale", 1.0))
-            try:
-                scale = float(scale)
-            except (TypeError, ValueError) as exc:
-                raise SceneError(f"{path}: depth_scale {scale!r} is not a number") from exc
-            if not np.isfinite(scale) or scale <= 0:
-                raise SceneError(f"{path}: depth_scale must be positive, got {scale}")
-            depth = depth / scale
-        image = root / str(frame["image"])
+        if frame.depth:
+            depth, depth_path = _user_depth(root, frame, meta)
+        image = root / frame.image
         return load_view(
-            image.stem, image, cameras[i], BLACK, downscale, depth=depth, depth_source=depth_path
+            image.stem,
+            image,
+            cameras[i],
+            background,
+            downscale,
+            depth=depth,
+            depth_source=depth_path,
         )
 
-    train = [view(i) for i in train_idx]
-    near, far = look_at_bounds([cameras[i] for i in train_idx])
+    train = [view(i, BLACK) for i in train_idx]
+    test = [view(i, BLACK) for i in test_idx]
+    background = default_background(train + test, BLACK)
+    if background != BLACK:
+        old, new = torch.tensor(BLACK), torch.tensor(background)
+        train = [recomposite(v, old, new) for v in train]
+        test = [recomposite(v, old, new) for v in test]
+    near, far = look_at_bounds(train_cams)
     depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
     if depths and sum(d.numel() for d in depths) > 0:
         valid = torch.cat(depths)
         near, far = float(valid.min()) * 0.8, float(valid.max()) * 1.25
-    box = covisible_box([cameras[i] for i in train_idx], [near] * count, [far] * count)
+    alone = check_overlap(train_cams, train_names, near, far, str(path))
+    if alone:
+        log.warning(
+            "%s: training view(s) %s share nothing with the other cameras: check their matrices",
+            path,
+            ", ".join(alone),
+        )
+    box = covisible_box(train_cams, [near] * count, [far] * count)
     return Scene(
         name=root.name,
         format="folder",
         train=train,
-        test=[view(i) for i in test_idx],
-        background=torch.tensor(BLACK),
+        test=test,
+        background=torch.tensor(background),
         near=near,
         far=far,
         init_box=box,
         train_indices=train_idx,
         test_indices=test_idx,
     )
-
-
-BLACK = (0.0, 0.0, 0.0)

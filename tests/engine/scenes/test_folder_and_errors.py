@@ -104,12 +104,12 @@ def test_llff_errors(tmp_path: Path) -> None:
     from PIL import Image
 
     for i in range(10):
-        Image.new("RGB", (16, 12)).save(root / "images" / f"{i:03d}.png")
+        Image.new("RGB", (32, 24)).save(root / "images" / f"{i:03d}.png")
     rows = np.zeros((10, 17))
     for i in range(10):
         mat = np.zeros((3, 5))
         mat[:, :3] = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]
-        mat[:, 4] = [12, 16, 20]
+        mat[:, 4] = [24, 32, 40]
         rows[i, :15], rows[i, 15:] = mat.reshape(-1), [1, 5]
     rows[3, 0] = 2.0  # non-rigid rotation in row 3
     np.save(root / "poses_bounds.npy", rows)
