@@ -25,3 +25,16 @@ class ErrorBody(BaseModel):
     """Stable identifier of the error kind, e.g. ``invalid_cameras``."""
     message: str
     """What was wrong, naming the field or file."""
+
+
+class Readiness(BaseModel):
+    """Answer of ``GET /readyz`` (503 when not ready)."""
+
+    ready: bool
+    """Whether jobs submitted now will run and renders will be answered."""
+    database: bool
+    """Whether the job database answered."""
+    workers: dict[str, int]
+    """Workers with a fresh heartbeat, by kind (``train``, ``render``)."""
+    problems: list[str]
+    """What is missing, in words."""

@@ -7,6 +7,7 @@ files under ``./sparsesplat-data``, local worker processes, CPU, listening on 12
 
 from __future__ import annotations
 
+import json
 import os
 from enum import StrEnum
 from pathlib import Path
@@ -78,13 +79,57 @@ class Settings(BaseSettings):
     log_json: bool = True
     """One JSON object per log line (False: human-readable key=value lines)."""
     max_upload_mb: int = Field(512, ge=1)
-    """Largest accepted upload, in MiB."""
+    """Largest accepted request body (an upload), in MiB."""
+    render_workers: int = Field(1, ge=0, le=64)
+    """Local render worker processes the server starts; 0: external render workers only."""
+    render_threads: int = Field(2, ge=1, le=256)
+    """Torch intra-op threads per render worker."""
+    render_cache_models: int = Field(4, ge=1, le=1000)
+    """Trained models each render worker keeps loaded (least recently used leave first)."""
+    max_images: int = Field(64, ge=2, le=10_000)
+    """Most images (training + held-out) in one job."""
+    max_megapixels: float = Field(40.0, gt=0)
+    """Largest accepted image, in millions of pixels (checked from the header, before decoding:
+    a decompression bomb is refused without being decoded)."""
+    max_render_megapixels: float = Field(16.0, gt=0)
+    """Largest render, in millions of pixels per frame."""
+    max_path_cameras: int = Field(240, ge=1)
+    """Most cameras in one render path."""
+    max_active_jobs_per_key: int = Field(10, ge=1)
+    """Queued plus running jobs one API key may have."""
+    renders_per_second: float = Field(20.0, gt=0)
+    """Sustained renders per second per key (bursts up to twice this); 429 beyond."""
+    lease_s: float = Field(30.0, gt=1)
+    """How long a job's lease lasts without a heartbeat before it is presumed dead."""
+    heartbeat_s: float = Field(5.0, gt=0)
+    """Seconds between a worker's heartbeats (must be well below ``lease_s``)."""
+    poll_s: float = Field(1.0, gt=0)
+    """Seconds an idle training worker waits before asking for a job again."""
+    cancel_grace_s: float = Field(30.0, gt=0)
+    """Seconds a cancelled job gets to stop by itself before its worker process is ended."""
+    max_attempts: int = Field(3, ge=1)
+    """Starts allowed for a job whose worker keeps dying, before it fails."""
+    readiness_max_age_s: float = Field(30.0, gt=0)
+    """``/readyz`` wants a worker heartbeat at most this old."""
 
     @model_validator(mode="after")
     def _fill_database_url(self) -> Settings:
         if self.database_url is None:
             self.database_url = f"sqlite:///{self.data_dir / 'sparsesplat.db'}"
+        if self.heartbeat_s * 2 >= self.lease_s:
+            raise ValueError(
+                f"heartbeat_s ({self.heartbeat_s}) must be under half of lease_s ({self.lease_s})"
+            )
         return self
+
+    def environment(self) -> dict[str, str]:
+        """These settings as ``SPARSESPLAT_*`` variables, for child processes to read back."""
+        out: dict[str, str] = {}
+        for name, value in self.model_dump(mode="json").items():
+            if name == "api_keys":
+                value = [k.get_secret_value() for k in self.api_keys]
+            out[ENV_PREFIX + name.upper()] = value if isinstance(value, str) else json.dumps(value)
+        return out
 
     @property
     def auth_enabled(self) -> bool:

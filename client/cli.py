@@ -29,6 +29,10 @@ COMMANDS: dict[str, Command] = {
     "serve": Command(
         "sparsesplat.server.cli", "run the HTTP service (embedded defaults)", "service"
     ),
+    "worker": Command(
+        "sparsesplat.worker.cli", "run training and render workers (no API)", "service"
+    ),
+    "keys": Command("sparsesplat.server.keys_cli", "manage API keys (on the server)", "service"),
     "health": Command(
         "sparsesplat.client.commands", "ask a running service whether it is up", None
     ),

@@ -6,16 +6,39 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+import sqlalchemy.exc
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sparsesplat import __version__
-from sparsesplat.api.schemas import ErrorBody, Health
+from sparsesplat.api.schemas import ErrorBody
 from sparsesplat.api.settings import Settings, load_settings
+from sparsesplat.server.auth import Authenticator
+from sparsesplat.server.errors import ServiceError
+from sparsesplat.server.limits import BodySizeLimit
+from sparsesplat.server.routes import events, jobs, models, service
+from sparsesplat.server.state import ServiceState
 
 log = logging.getLogger("sparsesplat.server")
+# httpx logs every request to the render workers at INFO; uvicorn's access log already has them.
+logging.getLogger("httpx").setLevel(logging.WARNING)
+
+_STATUS_CODES = {400: "bad_request", 404: "not_found", 405: "method_not_allowed"}
+
+
+def _operation_id(route: APIRoute) -> str:
+    """Stable OpenAPI operation ids (``tag-name``) so generated clients keep their names."""
+    tag = route.tags[0] if route.tags else "default"
+    return f"{tag}-{route.name}"
+
+
+def _error(
+    status: int, code: str, message: str, headers: dict[str, str] | None = None
+) -> JSONResponse:
+    return JSONResponse(ErrorBody(code=code, message=message).model_dump(), status, headers)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -24,35 +47,54 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
-        log.info(
-            "service starting",
-            extra={"data_dir": str(settings.data_dir), "queue": settings.queue.value},
-        )
+        state = ServiceState.open(settings)
+        app.state.service = state
+        app.state.authenticator = Authenticator(settings, state.keys)
+        log.info("service started", extra={"data_dir": str(settings.data_dir),
+                                           "queue": settings.queue.value})  # fmt: skip
         yield
+        await state.close()
         log.info("service stopped")
 
-    app = FastAPI(title="sparsesplat", version=__version__, lifespan=lifespan)
+    app = FastAPI(
+        title="sparsesplat",
+        version=__version__,
+        summary="Sparse-view Gaussian splatting: train from a few posed photos, render any view.",
+        lifespan=lifespan,
+        generate_unique_id_function=_operation_id,
+    )
     app.state.settings = settings
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_mb * 2**20)
+
+    @app.exception_handler(ServiceError)
+    async def _service_error(request: Request, exc: ServiceError) -> JSONResponse:
+        return _error(exc.status_code, exc.code, str(exc.detail), exc.headers)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        code = "not_found" if exc.status_code == 404 else f"http_{exc.status_code}"
-        body = ErrorBody(code=code, message=str(exc.detail))
-        return JSONResponse(body.model_dump(), status_code=exc.status_code)
+        code = _STATUS_CODES.get(exc.status_code, f"http_{exc.status_code}")
+        return _error(exc.status_code, code, str(exc.detail), getattr(exc, "headers", None))
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         problems = "; ".join(
-            f"{'.'.join(str(p) for p in err.get('loc', ()))}: {err.get('msg', '')}"
+            f"{'.'.join(str(p) for p in err.get('loc', ()))}: "
+            f"{str(err.get('msg', '')).removeprefix('Value error, ')}"
             for err in exc.errors()
         )
-        body = ErrorBody(code="invalid_request", message=problems or "invalid request")
-        return JSONResponse(body.model_dump(), status_code=422)
+        return _error(422, "invalid_request", problems or "invalid request")
 
-    @app.get("/healthz", response_model=Health, tags=["service"])
-    async def healthz() -> Health:
-        """Liveness: answers as soon as the process serves HTTP."""
-        return Health(version=__version__, queue=settings.queue.value, device=settings.device.value)
+    @app.exception_handler(sqlalchemy.exc.OperationalError)
+    async def _database_down(request: Request, exc: Exception) -> JSONResponse:
+        log.warning("database unavailable", exc_info=True)
+        message = "the job database is not answering; try again shortly"
+        return _error(503, "database_unavailable", message, {"Retry-After": "5"})
 
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error", extra={"path": request.url.path})
+        return _error(500, "internal_error", f"the server failed: {type(exc).__name__}")
+
+    for router in (service.router, jobs.router, events.router, models.router):
+        app.include_router(router)
     return app

@@ -1,8 +1,11 @@
-"""``sparsesplat serve``: run the HTTP service with uvicorn."""
+"""``sparsesplat serve``: the HTTP service plus its local worker processes (embedded defaults)."""
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -10,16 +13,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="bind address (SPARSESPLAT_HOST, default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="TCP port (SPARSESPLAT_PORT, default 8000)")
     parser.add_argument("--data-dir", help="local storage root (SPARSESPLAT_DATA_DIR)")
-    parser.add_argument("--workers", type=int, help="local worker processes (SPARSESPLAT_WORKERS)")
+    parser.add_argument(
+        "--workers", type=int, help="training worker processes (SPARSESPLAT_WORKERS, default 1)"
+    )
+    parser.add_argument(
+        "--render-workers", type=int,
+        help="render worker processes (SPARSESPLAT_RENDER_WORKERS, default 1)",
+    )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
-    """Start uvicorn in this process and serve until interrupted."""
+    """Migrate the database, start the workers, serve HTTP until interrupted."""
     import uvicorn
 
     from sparsesplat.api.logs import configure_logging
     from sparsesplat.api.settings import load_settings
+    from sparsesplat.api.store.database import make_engine, migrate
+    from sparsesplat.api.store.keys import KeyStore
     from sparsesplat.server.app import create_app
+    from sparsesplat.server.auth import InsecureExposure, check_exposure
 
     overrides = {
         key: value
@@ -28,11 +40,39 @@ def run(args: argparse.Namespace) -> int:
             "port": args.port,
             "data_dir": args.data_dir,
             "workers": args.workers,
+            "render_workers": args.render_workers,
         }.items()
         if value is not None
     }
     settings = load_settings(**overrides)
     configure_logging(settings.log_level, json_lines=settings.log_json)
-    app = create_app(settings)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_config=None, access_log=True)
+    assert settings.database_url is not None
+    engine = make_engine(settings.database_url)
+    migrate(engine)
+    try:
+        check_exposure(settings, KeyStore(engine))
+    except InsecureExposure as exc:
+        print(f"sparsesplat serve: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        engine.dispose()
+    workers = None
+    if settings.workers + settings.render_workers > 0:
+        # A separate process tree (no import of the worker package: the server stays torch-free).
+        workers = subprocess.Popen(
+            [sys.executable, "-m", "sparsesplat.worker", "supervise"],
+            env={**os.environ, **settings.environment()},
+        )
+    try:
+        uvicorn.run(
+            create_app(settings), host=settings.host, port=settings.port, log_config=None,
+            access_log=True,
+        )  # fmt: skip
+    finally:
+        if workers is not None:
+            workers.terminate()
+            try:
+                workers.wait(timeout=90)
+            except subprocess.TimeoutExpired:
+                workers.kill()
     return 0

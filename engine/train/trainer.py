@@ -19,6 +19,7 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -31,6 +32,7 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, make_color_model
+from sparsesplat.engine.datasets.common import with_background
 from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
 from sparsesplat.engine.losses import (
@@ -42,11 +44,12 @@ from sparsesplat.engine.losses import (
     scale_regularizer,
     shape_regularizer,
 )
+from sparsesplat.engine.metrics.image import masked_psnr, psnr, quantize
 from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
-from sparsesplat.engine.train.evaluate import Evaluator
+from sparsesplat.engine.train.evaluate import PSNR_CEILING, Evaluator
 from sparsesplat.engine.train.progress import (
     ProgressCallback,
     ProgressRecord,
@@ -54,6 +57,8 @@ from sparsesplat.engine.train.progress import (
     wants_stop,
 )
 from sparsesplat.engine.train.schedule import position_lr
+
+log = logging.getLogger(__name__)
 
 
 class ModelCollapsed(EngineError, RuntimeError):
@@ -105,6 +110,38 @@ def _empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tenso
     return torch.where(empty, prior[~empty].min(), prior)
 
 
+def initial_point_count(
+    cfg: TrainConfig, lo: Tensor, hi: Tensor, camera_centers: list[Tensor]
+) -> int:
+    """The automatic initial Gaussian count: ``init_points_density`` x the init box's largest
+    side over the median distance from the cameras to the box centre (a ratio of lengths, so
+    the same scene in millimetres or metres gets the same count), clamped to the config's
+    bounds."""
+    centre = (lo.double() + hi.double()) / 2
+    dist = torch.stack([(c.double() - centre).norm() for c in camera_centers]).median()
+    side = float((hi.double() - lo.double()).max())
+    n = round(cfg.init_points_density * side / float(dist)) if float(dist) > 0 else 0
+    return min(max(n, cfg.init_points_min), cfg.init_points_max)
+
+
+BACKGROUND_MARGIN_DB = 0.5
+"""A held-out PSNR within this of the constant-background image's is no better than an empty
+model (the run warns)."""
+EMPTY_COVERAGE = 0.01
+"""A render whose mean alpha is below this is (nearly) empty."""
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no Infinity/NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
 class Trainer:
     """Trains one scene with one config; drive it with :meth:`run`."""
 
@@ -140,6 +177,12 @@ class Trainer:
         """Accumulated seconds per stage when ``config.profile`` is on."""
         self._loss_sum = 0.0
         self._loss_count = 0
+        self._background_psnr: float | None = None
+        self.view_coverage: dict[str, float] = {}
+        """Mean alpha of each view's render at the last evaluation (by view name)."""
+        self.stop_requested = False
+        """Set from another thread (a job's cancel or a time budget): the run stops after the
+        current iteration, with a checkpoint, as if the progress callback had said stop."""
         if resume_from is not None:
             self._load_state(load_checkpoint(resume_from))
 
@@ -147,7 +190,9 @@ class Trainer:
     def _setup_data(self, priors: list[Any] | None) -> None:
         cfg, dev = self.config, self.device
         bg = cfg.background if cfg.background is not None else self.scene.background
-        self.background = torch.as_tensor(bg, dtype=torch.float32).reshape(3).to(dev)
+        # One background for targets and renders: images with alpha are re-composited on it.
+        self.scene = with_background(self.scene, torch.as_tensor(bg, dtype=torch.float32))
+        self.background = self.scene.background.float().reshape(3).to(dev)
         self.cameras = [v.camera.to(dev, torch.float32) for v in self.scene.train]
         self.images = [
             v.image.permute(2, 0, 1).contiguous().float().to(dev) for v in self.scene.train
@@ -202,8 +247,7 @@ class Trainer:
         if cfg.init_points is not None:
             n = cfg.init_points
         else:
-            n = int(cfg.init_points_per_unit * float((hi - lo).max()) / 1.3)
-            n = min(max(n, cfg.init_points_min), cfg.init_points_max)
+            n = initial_point_count(cfg, lo, hi, [c.center.cpu() for c in self.cameras])
         points = lo + torch.rand(n, 3, generator=g) * (hi - lo)
         self.color: ColorModel
         if cfg.color_model == "neural":
@@ -301,6 +345,7 @@ class Trainer:
             self.color.geo_features(self.gaussians) if isinstance(self.color, NeuralColor) else None
         )
         scores = []
+        coverage = []
         with torch.no_grad():
             for v in views:
                 out = _render_model(
@@ -312,7 +357,50 @@ class Trainer:
                     geo,
                 )
                 scores.append(self._evaluator.score(out.image, v.image, v.mask, key=v.name))
+                coverage.append(float(out.alpha.mean()))
+        self.view_coverage = dict(zip([v.name for v in views], coverage, strict=True))
         return self._evaluator.mean(scores)
+
+    def background_psnr(self) -> float | None:
+        """Mean held-out PSNR of an image filled with the background: what an empty model
+        scores (same protocol as :meth:`evaluate`; None without held-out views)."""
+        if not self.scene.test:
+            return None
+        if self._background_psnr is None:
+            values = []
+            for v in self.scene.test:
+                truth = quantize(v.image)
+                flat = quantize(self.background.cpu().view(1, 1, 3).expand_as(v.image))
+                if v.mask is not None:
+                    value = masked_psnr(flat, truth, v.mask.float().numpy())
+                else:
+                    value = psnr(flat, truth)
+                values.append(min(value, PSNR_CEILING))
+            self._background_psnr = sum(values) / len(values)
+        return self._background_psnr
+
+    def emptiness_warning(self, psnr_db: float | None) -> str | None:
+        """A warning when the last evaluated renders are (nearly) empty or score no better
+        than the constant background, else None."""
+        empty = sorted(n for n, c in self.view_coverage.items() if c < EMPTY_COVERAGE)
+        base = self.background_psnr()
+        problems = []
+        if empty:
+            problems.append(
+                f"{len(empty)} of {len(self.view_coverage)} evaluated views render (nearly) "
+                f"empty (under {EMPTY_COVERAGE:.0%} of pixels covered: {', '.join(empty[:5])})"
+            )
+        if psnr_db is not None and base is not None and psnr_db <= base + BACKGROUND_MARGIN_DB:
+            problems.append(
+                f"held-out PSNR {psnr_db:.2f} dB is no better than a constant background image "
+                f"({base:.2f} dB)"
+            )
+        if not problems:
+            return None
+        return (
+            "; ".join(problems) + ". The model may be empty: check the poses (convention, pose), "
+            "the background and the preset"
+        )
 
     def _record(self, final: bool = False) -> bool:
         """Evaluate, append and emit one record; returns True if the callback asked to stop."""
@@ -680,6 +768,8 @@ class Trainer:
             self.elapsed_s += dt
             since_eval += dt
             since_ckpt += dt
+            if self.stop_requested:
+                return self._finish(stopped=True)
             if self.iteration == cfg.iterations:
                 break
             due = (cfg.eval_interval_s > 0 and since_eval >= cfg.eval_interval_s) or (
@@ -710,7 +800,19 @@ class Trainer:
             n_gaussians=len(self.gaussians),
             preset=self.config.preset,
             stopped=stopped,
+            background_psnr=self.background_psnr(),
         )
+        if not self.scene.test:  # no held-out views: judge emptiness on the training views
+            with torch.no_grad():
+                self.view_coverage = {
+                    v.name: float(self.render(v.camera).alpha.mean()) for v in self.scene.train
+                }
+        if self.view_coverage:
+            metrics["coverage"] = sum(self.view_coverage.values()) / len(self.view_coverage)
+        warning = self.emptiness_warning(metrics.get("psnr"))
+        if warning:
+            log.warning("%s: %s", self.scene.name, warning)
+            metrics["warnings"] = [warning]
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._emit(StateChange("checkpointing", self.iteration))
@@ -720,7 +822,8 @@ class Trainer:
             artifacts.update(self._write_series())
             metrics["series"] = self.records
             path = self.out_dir / "metrics.json"
-            path.write_text(json.dumps(metrics, indent=1, default=str))
+            # Valid JSON: no bare Infinity/NaN (non-finite figures are written as null).
+            path.write_text(json.dumps(json_safe(metrics), indent=1, default=str, allow_nan=False))
             artifacts["metrics"] = path
             del metrics["series"]
         self._emit(StateChange("stopped" if stopped else "finished", self.iteration))
@@ -763,9 +866,9 @@ class Trainer:
         export_ply(out["ply"], *args)
         export_splat(out["splat"], *args)
         if isinstance(self.color, NeuralColor):
-            metrics["sh_baking_psnr"] = _baking_psnr(
-                g, self.color, sh, self.cameras, self.background
-            )
+            baking = _baking_psnr(g, self.color, sh, self.cameras, self.background)
+            # Identical renders give +inf: kept at the held-out PSNR ceiling (valid JSON).
+            metrics["sh_baking_psnr"] = None if baking is None else min(baking, PSNR_CEILING)
         return out
 
 

@@ -1,0 +1,201 @@
+"""Wire schemas of training jobs: what a client submits, what it reads back, and the events.
+
+A job trains one uploaded scene. When it succeeds it has a model with the same id, which the
+render and export routes serve (``/v1/models/{job_id}/...``).
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from enum import StrEnum
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+PresetName = Literal["llff", "dtu", "blender", "default"]
+"""Training recipes (engine presets): ``llff`` forward-facing captures, ``dtu`` object on a
+dark background, ``blender`` object on white, ``default`` user uploads (LLFF recipe)."""
+
+ColorModelName = Literal["neural", "sh"]
+"""Colour model: DNGaussian's neural colour field, or plain spherical harmonics."""
+
+
+class JobState(StrEnum):
+    """Life cycle of a job. ``queued`` → ``running`` → one of the three terminal states."""
+
+    queued = "queued"
+    """Waiting for a worker (also after a worker died: the job resumes from its checkpoint)."""
+    running = "running"
+    """A worker holds the job's lease and trains it."""
+    succeeded = "succeeded"
+    """Trained; the model can be rendered and exported."""
+    failed = "failed"
+    """Gave up; ``error`` says why and what to change."""
+    cancelled = "cancelled"
+    """Cancelled by its owner."""
+
+    @property
+    def terminal(self) -> bool:
+        """Whether the job will not change state again."""
+        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+class JobSpec(BaseModel):
+    """How to train: the JSON ``spec`` part of ``POST /v1/jobs``. Every field is optional."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"preset": "llff", "depth_prior": "pydnet", "seed": 0, "iterations": 2000}]
+        },
+    )
+
+    preset: PresetName | None = None
+    """Training recipe; None picks one from the scene (background and camera layout)."""
+    depth_prior: str | None = None
+    """Depth prior: ``pydnet`` (bundled), ``plane_sweep``, ``uploaded`` (the depth maps sent
+    with the images), ``none``, or ``onnx:NAME`` for a MiDaS/DPT ONNX file in the server's
+    models directory. None: the preset's."""
+    color_model: ColorModelName | None = None
+    """Colour model; None: the preset's (neural)."""
+    hard_depth: bool | None = None
+    """Hard-depth pass (moves only centres); None: the preset's."""
+    soft_depth: bool | None = None
+    """Soft-depth pass (moves only opacities); None: the preset's."""
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    """Random seed of the run."""
+    iterations: int | None = Field(None, ge=1, le=100_000)
+    """Iterations to train; fewer than the preset's compress its whole schedule."""
+    time_budget_s: float | None = Field(None, gt=0, le=7 * 24 * 3600)
+    """Training seconds to aim for instead of ``iterations``: the schedule is compressed to
+    fit, from the iteration cost measured on this scene at the start of the run."""
+    record_interval_s: float | None = Field(None, gt=0, le=24 * 3600)
+    """Training seconds between held-out error records (the error-against-time curve);
+    None: the preset's (60 s)."""
+    background: tuple[float, float, float] | None = None
+    """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
+
+    @model_validator(mode="after")
+    def _one_length(self) -> JobSpec:
+        if self.iterations is not None and self.time_budget_s is not None:
+            raise ValueError("give either 'iterations' or 'time_budget_s', not both")
+        if self.background is not None and not all(0.0 <= c <= 1.0 for c in self.background):
+            raise ValueError("background: each channel must be in [0, 1]")
+        return self
+
+
+class Record(BaseModel):
+    """One point of the error-against-run-time curve (held-out views)."""
+
+    iteration: int
+    """Iterations completed."""
+    elapsed_s: float
+    """Training seconds so far (evaluation and checkpoint time excluded)."""
+    train_loss: float | None = None
+    """Mean photometric training loss since the previous record."""
+    psnr: float | None = None
+    """Mean held-out PSNR in dB (None without held-out views)."""
+    ssim: float | None = None
+    """Mean held-out SSIM."""
+    lpips: float | None = None
+    """Mean held-out LPIPS (VGG; None when its weights are not installed)."""
+    avge: float | None = None
+    """Geometric mean of the three errors (None without LPIPS)."""
+    n_gaussians: int
+    """Gaussians in the model at this point."""
+    final: bool = False
+    """True for the record taken at the end (all held-out views)."""
+
+
+class Progress(BaseModel):
+    """Where a running job is."""
+
+    iteration: int = 0
+    """Iterations completed."""
+    total: int | None = None
+    """Iterations the run will do."""
+    elapsed_s: float = 0.0
+    """Training seconds so far."""
+    eta_s: float | None = None
+    """Estimated training seconds remaining."""
+    phase: str | None = None
+    """What the worker does now: ``preparing``, ``training``, ``evaluating``, ``exporting``…"""
+    last_record: Record | None = None
+    """The latest held-out record."""
+
+
+class Job(BaseModel):
+    """A job as ``GET /v1/jobs/{id}`` returns it."""
+
+    id: str
+    """Job id (also the id of its model)."""
+    state: JobState
+    """Current state."""
+    spec: JobSpec
+    """What was asked for."""
+    created_at: datetime
+    """Submission time (UTC)."""
+    started_at: datetime | None = None
+    """When a worker first started it."""
+    finished_at: datetime | None = None
+    """When it reached a terminal state."""
+    queue_position: int | None = None
+    """Jobs ahead of it in the queue (0: next); only while queued."""
+    progress: Progress | None = None
+    """Only once a worker has started it."""
+    error: str | None = None
+    """Why it failed, in words a user can act on."""
+    attempts: int = 0
+    """Times a worker has started it (a worker that died counts)."""
+    n_train_views: int
+    """Training images uploaded."""
+    n_test_views: int
+    """Held-out images uploaded (scored against renders while training)."""
+    has_model: bool = False
+    """Whether ``/v1/models/{id}`` can render and export."""
+
+
+class JobPage(BaseModel):
+    """One page of ``GET /v1/jobs``, newest first."""
+
+    jobs: list[Job]
+    """The jobs on this page."""
+    next_cursor: str | None = None
+    """Pass as ``cursor`` for the next page; None on the last page."""
+
+
+EventType = Literal["state", "progress", "record"]
+"""``state``: the job changed state; ``progress``: iteration/phase update; ``record``: a
+held-out error record."""
+
+
+class Event(BaseModel):
+    """One stored event of a job; ``seq`` numbers them 1, 2, 3… per job, without gaps."""
+
+    seq: int
+    """Sequence number within the job (reconnect with ``?after=seq``)."""
+    job_id: str
+    """The job."""
+    type: EventType
+    """What kind of event."""
+    time: datetime
+    """When it was stored (UTC)."""
+    data: dict[str, Any]
+    """``state``: {state, message}; ``progress``: a Progress; ``record``: a Record."""
+
+
+class ModelInfo(BaseModel):
+    """A trained model (``GET /v1/models/{id}``)."""
+
+    id: str
+    """Model id (= the job id)."""
+    n_gaussians: int
+    """Gaussians in the model."""
+    iterations: int
+    """Iterations it was trained for."""
+    metrics: dict[str, float | None]
+    """Final held-out metrics (psnr, ssim, lpips, avge)."""
+    exports: list[str]
+    """Available export formats (``ply``, ``splat``, ``checkpoint``)."""
+    cameras: list[dict[str, Any]]
+    """The uploaded cameras (as in ``cameras.json``, with their split)."""

@@ -1,0 +1,458 @@
+"""The job repository: every read and write of job records and their events.
+
+Used by the API (create, read, cancel, delete) and by the workers (claim, heartbeat, progress,
+finish). Each method is one short transaction. A job is claimed with a lease that the worker
+renews by heartbeat; a job whose lease expired (its worker died) goes back to the queue and
+resumes from its last checkpoint, until it has been attempted ``max_attempts`` times.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import time
+import uuid
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+import sqlalchemy as sa
+
+from sparsesplat.api.jobs import Event, Job, JobSpec, JobState, Progress
+from sparsesplat.api.store.tables import events, jobs
+
+MAX_ATTEMPTS = 3
+"""Times a job may be started before a dead worker makes it fail for good."""
+
+
+def new_job_id() -> str:
+    """A fresh, URL-safe job id."""
+    return "job_" + uuid.uuid4().hex[:20]
+
+
+def _dt(value: float | None) -> datetime | None:
+    return None if value is None else datetime.fromtimestamp(value, UTC)
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A job a worker now holds."""
+
+    job_id: str
+    """The job."""
+    spec: dict[str, Any]
+    """Its spec (JobSpec as JSON)."""
+    attempt: int
+    """1 for the first start; more after a worker died."""
+
+
+class JobStore:
+    """Job records over one SQLAlchemy engine (SQLite or PostgreSQL)."""
+
+    def __init__(self, engine: sa.Engine, max_attempts: int = MAX_ATTEMPTS) -> None:
+        """``max_attempts``: starts allowed before a job whose worker keeps dying fails."""
+        self.engine = engine
+        self.max_attempts = max_attempts
+
+    # -- API side ----------------------------------------------------------------------------
+    def create(
+        self,
+        job_id: str,
+        owner: str,
+        spec: JobSpec,
+        n_train_views: int,
+        n_test_views: int,
+        idempotency_key: str | None = None,
+    ) -> tuple[str, bool]:
+        """Insert a queued job; returns (id, created). With an ``idempotency_key`` already used
+        by ``owner``, returns the first job's id and False instead."""
+        now = time.time()
+        with self.engine.begin() as conn:
+            if idempotency_key is not None:
+                existing = conn.execute(
+                    sa.select(jobs.c.id).where(
+                        jobs.c.owner == owner, jobs.c.idempotency_key == idempotency_key
+                    )
+                ).scalar_one_or_none()
+                if existing is not None:
+                    return existing, False
+            conn.execute(
+                jobs.insert().values(
+                    id=job_id,
+                    owner=owner,
+                    state=JobState.queued.value,
+                    spec=spec.model_dump(mode="json"),
+                    created_at=now,
+                    attempts=0,
+                    cancel_requested=False,
+                    idempotency_key=idempotency_key,
+                    n_train_views=n_train_views,
+                    n_test_views=n_test_views,
+                    last_seq=0,
+                )
+            )
+            self._append(conn, job_id, "state", {"state": "queued", "message": "submitted"})
+        return job_id, True
+
+    def get(self, job_id: str, owner: str | None = None) -> Job | None:
+        """The job, or None when it does not exist (or belongs to another owner)."""
+        with self.engine.begin() as conn:
+            row = conn.execute(self._select(owner).where(jobs.c.id == job_id)).first()
+            if row is None:
+                return None
+            return self._to_job(conn, row)
+
+    def find_by_idempotency_key(self, owner: str, key: str) -> Job | None:
+        """The job ``owner`` submitted with idempotency ``key``, if any."""
+        with self.engine.begin() as conn:
+            row = conn.execute(self._select(owner).where(jobs.c.idempotency_key == key)).first()
+            return None if row is None else self._to_job(conn, row)
+
+    def owner_of(self, job_id: str) -> str | None:
+        """Owner of a job (None if it does not exist)."""
+        with self.engine.begin() as conn:
+            return conn.execute(
+                sa.select(jobs.c.owner).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+
+    def result(self, job_id: str) -> dict[str, Any] | None:
+        """What the worker stored when the job succeeded (metrics, sizes), else None."""
+        with self.engine.begin() as conn:
+            value = conn.execute(
+                sa.select(jobs.c.result).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+        return dict(value) if value else None
+
+    def list(
+        self, owner: str, state: JobState | None = None, cursor: str | None = None, limit: int = 20
+    ) -> tuple[list[Job], str | None]:
+        """The owner's jobs, newest first, one page; returns (jobs, next cursor or None)."""
+        query = self._select(owner)
+        if state is not None:
+            query = query.where(jobs.c.state == state.value)
+        if cursor:
+            created, job_id = _decode_cursor(cursor)
+            query = query.where(
+                sa.or_(
+                    jobs.c.created_at < created,
+                    sa.and_(jobs.c.created_at == created, jobs.c.id < job_id),
+                )
+            )
+        query = query.order_by(jobs.c.created_at.desc(), jobs.c.id.desc()).limit(limit + 1)
+        with self.engine.begin() as conn:
+            rows = conn.execute(query).all()
+            page = [self._to_job(conn, r) for r in rows[:limit]]
+        more = len(rows) > limit
+        next_cursor = (
+            _encode_cursor(rows[limit - 1].created_at, rows[limit - 1].id) if more else None
+        )
+        return page, next_cursor
+
+    def count_active(self, owner: str) -> int:
+        """Queued or running jobs of ``owner`` (for the per-key queue limit)."""
+        with self.engine.begin() as conn:
+            return int(
+                conn.execute(
+                    sa.select(sa.func.count())
+                    .select_from(jobs)
+                    .where(
+                        jobs.c.owner == owner,
+                        jobs.c.state.in_([JobState.queued.value, JobState.running.value]),
+                    )
+                ).scalar_one()
+            )
+
+    def counts_by_state(self) -> dict[str, int]:
+        """Number of jobs in each state (every state present, zeros included)."""
+        counts = {s.value: 0 for s in JobState}
+        with self.engine.begin() as conn:
+            for state, n in conn.execute(
+                sa.select(jobs.c.state, sa.func.count()).group_by(jobs.c.state)
+            ):
+                counts[state] = int(n)
+        return counts
+
+    def request_cancel(self, job_id: str) -> JobState | None:
+        """Cancel: a queued job at once; a running one is flagged and its worker stops at the
+        next progress report. Returns the state afterwards (None if the job does not exist)."""
+        with self.engine.begin() as conn:
+            state = conn.execute(
+                sa.select(jobs.c.state).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+            if state is None:
+                return None
+            if state == JobState.queued.value:
+                conn.execute(
+                    jobs.update()
+                    .where(jobs.c.id == job_id)
+                    .values(state=JobState.cancelled.value, finished_at=time.time())
+                )
+                self._append(conn, job_id, "state", {"state": "cancelled", "message": "cancelled"})
+                return JobState.cancelled
+            if state == JobState.running.value:
+                conn.execute(jobs.update().where(jobs.c.id == job_id).values(cancel_requested=True))
+            return JobState(state)
+
+    def delete(self, job_id: str) -> None:
+        """Remove the job and its events (files are the storage's business)."""
+        with self.engine.begin() as conn:
+            conn.execute(events.delete().where(events.c.job_id == job_id))
+            conn.execute(jobs.delete().where(jobs.c.id == job_id))
+
+    def events_after(self, job_id: str, after: int = 0, limit: int = 500) -> list[Event]:
+        """Stored events with ``seq > after``, oldest first."""
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                sa.select(events)
+                .where(events.c.job_id == job_id, events.c.seq > after)
+                .order_by(events.c.seq)
+                .limit(limit)
+            ).all()
+        return [
+            Event(seq=r.seq, job_id=r.job_id, type=r.type, time=_dt(r.time), data=r.data)
+            for r in rows
+        ]
+
+    def last_seq(self, job_id: str) -> int:
+        """Sequence number of the job's newest event (0 if none or no such job)."""
+        with self.engine.begin() as conn:
+            value = conn.execute(
+                sa.select(jobs.c.last_seq).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+        return int(value or 0)
+
+    # -- worker side -------------------------------------------------------------------------
+    def claim(self, worker_id: str, lease_s: float) -> Claim | None:
+        """Take the oldest queued job (expired leases are re-queued first), or None."""
+        self.requeue_expired()
+        now = time.time()
+        with self.engine.begin() as conn:
+            query = (
+                sa.select(jobs.c.id, jobs.c.spec, jobs.c.attempts)
+                .where(jobs.c.state == JobState.queued.value)
+                .order_by(jobs.c.created_at, jobs.c.id)
+                .limit(1)
+            )
+            if conn.dialect.name == "postgresql":
+                query = query.with_for_update(skip_locked=True)
+            row = conn.execute(query).first()
+            if row is None:
+                return None
+            updated = conn.execute(
+                jobs.update()
+                .where(jobs.c.id == row.id, jobs.c.state == JobState.queued.value)
+                .values(
+                    state=JobState.running.value,
+                    worker_id=worker_id,
+                    lease_until=now + lease_s,
+                    attempts=jobs.c.attempts + 1,
+                    started_at=sa.func.coalesce(jobs.c.started_at, now),
+                )
+            )
+            if updated.rowcount != 1:
+                return None
+            attempt = int(row.attempts) + 1
+            message = "started" if attempt == 1 else f"resumed (attempt {attempt})"
+            self._append(conn, row.id, "state", {"state": "running", "message": message})
+        return Claim(row.id, dict(row.spec), attempt)
+
+    def heartbeat(
+        self, job_id: str, worker_id: str, lease_s: float, progress: Progress | None = None
+    ) -> tuple[bool, bool]:
+        """Renew the lease (and store ``progress``); returns (still ours, cancel requested).
+        Not ours any more means the lease expired and the job went to another worker: stop."""
+        values: dict[str, Any] = {"lease_until": time.time() + lease_s}
+        if progress is not None:
+            values["progress"] = progress.model_dump(mode="json")
+        with self.engine.begin() as conn:
+            updated = conn.execute(
+                jobs.update()
+                .where(
+                    jobs.c.id == job_id,
+                    jobs.c.worker_id == worker_id,
+                    jobs.c.state == JobState.running.value,
+                )
+                .values(**values)
+            )
+            cancel = conn.execute(
+                sa.select(jobs.c.cancel_requested).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+        return updated.rowcount == 1, bool(cancel)
+
+    def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
+        """Append one event; returns its sequence number."""
+        with self.engine.begin() as conn:
+            return self._append(conn, job_id, type_, data)
+
+    def finish(
+        self,
+        job_id: str,
+        worker_id: str,
+        state: JobState,
+        message: str = "",
+        result: dict[str, Any] | None = None,
+    ) -> bool:
+        """Move a job this worker holds to a terminal state; False if it no longer held it."""
+        values: dict[str, Any] = {
+            "state": state.value,
+            "finished_at": time.time(),
+            "lease_until": None,
+            "error": message if state == JobState.failed else None,
+        }
+        if result is not None:
+            values["result"] = result
+        with self.engine.begin() as conn:
+            updated = conn.execute(
+                jobs.update()
+                .where(
+                    jobs.c.id == job_id,
+                    jobs.c.worker_id == worker_id,
+                    jobs.c.state == JobState.running.value,
+                )
+                .values(**values)
+            )
+            if updated.rowcount != 1:
+                return False
+            self._append(conn, job_id, "state", {"state": state.value, "message": message})
+        return True
+
+    def release(self, job_id: str, worker_id: str, message: str) -> None:
+        """Hand a running job back to the queue (a worker shutting down gracefully)."""
+        with self.engine.begin() as conn:
+            updated = conn.execute(
+                jobs.update()
+                .where(jobs.c.id == job_id, jobs.c.worker_id == worker_id)
+                .where(jobs.c.state == JobState.running.value)
+                .values(state=JobState.queued.value, worker_id=None, lease_until=None)
+            )
+            if updated.rowcount == 1:
+                self._append(conn, job_id, "state", {"state": "queued", "message": message})
+
+    def requeue_expired(self) -> list[str]:
+        """Running jobs whose lease ran out (worker died): back to the queue, or failed after
+        ``max_attempts`` starts. Returns the affected ids."""
+        now = time.time()
+        touched = []
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.id, jobs.c.attempts, jobs.c.cancel_requested).where(
+                    jobs.c.state == JobState.running.value, jobs.c.lease_until < now
+                )
+            ).all()
+            for row in rows:
+                if row.cancel_requested:
+                    state, msg = JobState.cancelled, "cancelled (its worker stopped)"
+                elif row.attempts >= self.max_attempts:
+                    state = JobState.failed
+                    msg = (
+                        f"the worker running this job stopped answering {row.attempts} times "
+                        "(killed or out of memory?); try fewer iterations or smaller images"
+                    )
+                else:
+                    state, msg = JobState.queued, "its worker stopped answering; re-queued"
+                values: dict[str, Any] = {"state": state.value, "worker_id": None}
+                values["lease_until"] = None
+                if state != JobState.queued:
+                    values["finished_at"] = now
+                if state == JobState.failed:
+                    values["error"] = msg
+                updated = conn.execute(
+                    jobs.update()
+                    .where(jobs.c.id == row.id, jobs.c.state == JobState.running.value)
+                    .where(jobs.c.lease_until < now)
+                    .values(**values)
+                )
+                if updated.rowcount == 1:
+                    self._append(conn, row.id, "state", {"state": state.value, "message": msg})
+                    touched.append(row.id)
+        return touched
+
+    def queued_ids(self) -> list[str]:
+        """Ids of queued jobs, oldest first (for re-dispatching to a broker)."""
+        with self.engine.begin() as conn:
+            return list(
+                conn.execute(
+                    sa.select(jobs.c.id)
+                    .where(jobs.c.state == JobState.queued.value)
+                    .order_by(jobs.c.created_at)
+                ).scalars()
+            )
+
+    # -- helpers -----------------------------------------------------------------------------
+    @staticmethod
+    def _select(owner: str | None) -> sa.Select[Any]:
+        query = sa.select(jobs)
+        return query if owner is None else query.where(jobs.c.owner == owner)
+
+    @staticmethod
+    def _append(conn: sa.Connection, job_id: str, type_: str, data: dict[str, Any]) -> int:
+        seq = conn.execute(
+            jobs.update()
+            .where(jobs.c.id == job_id)
+            .values(last_seq=jobs.c.last_seq + 1)
+            .returning(jobs.c.last_seq)
+        ).scalar_one()
+        conn.execute(
+            events.insert().values(
+                job_id=job_id, seq=seq, type=type_, time=time.time(), data=_json_safe(data)
+            )
+        )
+        return int(seq)
+
+    @staticmethod
+    def _to_job(conn: sa.Connection, row: sa.Row[Any]) -> Job:
+        position = None
+        if row.state == JobState.queued.value:
+            position = int(
+                conn.execute(
+                    sa.select(sa.func.count())
+                    .select_from(jobs)
+                    .where(
+                        jobs.c.state == JobState.queued.value,
+                        sa.or_(
+                            jobs.c.created_at < row.created_at,
+                            sa.and_(jobs.c.created_at == row.created_at, jobs.c.id < row.id),
+                        ),
+                    )
+                ).scalar_one()
+            )
+        return Job(
+            id=row.id,
+            state=JobState(row.state),
+            spec=JobSpec.model_validate(row.spec),
+            created_at=_dt(row.created_at),
+            started_at=_dt(row.started_at),
+            finished_at=_dt(row.finished_at),
+            queue_position=position,
+            progress=Progress.model_validate(row.progress) if row.progress else None,
+            error=row.error,
+            attempts=row.attempts,
+            n_train_views=row.n_train_views,
+            n_test_views=row.n_test_views,
+            has_model=row.state == JobState.succeeded.value,
+        )
+
+
+def _json_safe(data: Any) -> Any:
+    """Replace non-finite floats by None: JSON has no NaN/Infinity."""
+    if isinstance(data, float):
+        return data if data == data and abs(data) != float("inf") else None
+    if isinstance(data, dict):
+        return {str(k): _json_safe(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_json_safe(v) for v in data]
+    return data
+
+
+def _encode_cursor(created_at: float, job_id: str) -> str:
+    raw = json.dumps([created_at, job_id]).encode()
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+
+
+def _decode_cursor(cursor: str) -> tuple[float, str]:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4))
+        created, job_id = json.loads(raw)
+        return float(created), str(job_id)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"cursor {cursor!r} is not one this server issued") from exc

@@ -1,0 +1,1 @@
+"""One router per resource: jobs, their events, models, and the service itself."""

@@ -1,0 +1,153 @@
+"""``/v1/jobs``: submit, list, read, cancel and delete training jobs, and read their metrics."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import io
+from typing import Annotated
+
+from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi.responses import FileResponse
+from starlette.formparsers import MultiPartException
+
+from sparsesplat.api.jobs import Job, JobPage, JobState, Record
+from sparsesplat.api.store.jobs import new_job_id
+from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
+from sparsesplat.server.errors import ServiceError, invalid
+from sparsesplat.server.uploads import validate_upload
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+RECORD_COLUMNS = list(Record.model_fields)
+"""Columns of the CSV form of a job's metrics."""
+
+
+@router.post("", status_code=201, response_model=Job, summary="Submit a training job")
+async def submit_job(
+    request: Request,
+    response: Response,
+    service: ServiceDep,
+    owner: OwnerDep,
+    idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
+) -> Job:
+    """Multipart upload: ``cameras`` (cameras.json), ``images`` (one per frame), optional
+    ``depths`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried submission
+    returns the first job (200) instead of creating a second one."""
+    settings = service.settings
+    if idempotency_key is not None:
+        existing = await asyncio.to_thread(
+            service.jobs.find_by_idempotency_key, owner, idempotency_key
+        )
+        if existing is not None:
+            response.status_code = 200
+            response.headers["Location"] = f"/v1/jobs/{existing.id}"
+            return existing
+    active = await asyncio.to_thread(service.jobs.count_active, owner)
+    if active >= settings.max_active_jobs_per_key:
+        raise ServiceError(
+            429,
+            "too_many_jobs",
+            f"{active} jobs are queued or running for this key; the limit is "
+            f"{settings.max_active_jobs_per_key} (SPARSESPLAT_MAX_ACTIVE_JOBS_PER_KEY)",
+            {"Retry-After": "60"},
+        )
+    try:
+        form = await request.form(max_files=2 * settings.max_images + 4, max_fields=16)
+    except MultiPartException as exc:
+        raise invalid("invalid_upload", f"cannot read the multipart upload: {exc.message}") from exc
+    staging = service.storage.new_staging_dir()
+    try:
+        upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        job_id = new_job_id()
+        job_id, created = await asyncio.to_thread(
+            service.jobs.create, job_id, owner, upload.spec, upload.n_train_views,
+            upload.n_test_views, idempotency_key,
+        )  # fmt: skip
+        if created:
+            service.storage.commit_upload(staging, job_id)
+        else:
+            response.status_code = 200
+    finally:
+        service.storage.discard(staging)
+        await form.close()
+    job = await asyncio.to_thread(service.jobs.get, job_id, owner)
+    assert job is not None
+    response.headers["Location"] = f"/v1/jobs/{job.id}"
+    return job
+
+
+@router.get("", response_model=JobPage, summary="List your jobs")
+def list_jobs(
+    service: ServiceDep,
+    owner: OwnerDep,
+    state: JobState | None = None,
+    cursor: str | None = None,
+    limit: Annotated[int, Query(ge=1, le=100)] = 20,
+) -> JobPage:
+    """Your jobs, newest first; follow ``next_cursor`` for older ones."""
+    try:
+        page, next_cursor = service.jobs.list(owner, state, cursor, limit)
+    except ValueError as exc:
+        raise invalid("invalid_cursor", str(exc)) from exc
+    return JobPage(jobs=page, next_cursor=next_cursor)
+
+
+@router.get("/{job_id}", response_model=Job, summary="Read a job")
+def get_job(job: OwnJobDep) -> Job:
+    """State, queue position or progress, and the error of a failed job."""
+    return job
+
+
+@router.post("/{job_id}/cancel", response_model=Job, summary="Cancel a job")
+def cancel_job(job: OwnJobDep, service: ServiceDep, owner: OwnerDep) -> Job:
+    """A queued job is cancelled at once; a running one stops at its next iteration (its
+    worker is ended if it has not stopped within the grace period). Terminal jobs are left as
+    they are."""
+    service.jobs.request_cancel(job.id)
+    updated = service.jobs.get(job.id, owner)
+    assert updated is not None
+    return updated
+
+
+@router.delete("/{job_id}", status_code=204, summary="Delete a job and every file of it")
+def delete_job(job: OwnJobDep, service: ServiceDep) -> Response:
+    """Cancels it if needed, then removes its record, events, uploads, model and exports."""
+    if not job.state.terminal:
+        service.jobs.request_cancel(job.id)
+    service.jobs.delete(job.id)
+    service.storage.delete_job(job.id)
+    return Response(status_code=204)
+
+
+@router.get("/{job_id}/metrics", summary="Held-out error against run time")
+def get_metrics(
+    job: OwnJobDep,
+    service: ServiceDep,
+    format: Annotated[str, Query(pattern="^(json|csv)$")] = "json",
+) -> Response:
+    """The error-vs-time records so far (JSON list or CSV), one per evaluation."""
+    records = [
+        e.data for e in service.jobs.events_after(job.id, 0, limit=100_000) if e.type == "record"
+    ]
+    if format == "json":
+        import json
+
+        return Response(json.dumps(records), media_type="application/json")
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=RECORD_COLUMNS, extrasaction="ignore")
+    writer.writeheader()
+    for record in records:
+        writer.writerow({k: "" if record.get(k) is None else record.get(k) for k in RECORD_COLUMNS})
+    return Response(buffer.getvalue(), media_type="text/csv")
+
+
+@router.get("/{job_id}/metrics.png", summary="Plot of held-out error against run time")
+def get_metrics_plot(job: OwnJobDep, service: ServiceDep) -> FileResponse:
+    """PSNR, SSIM, LPIPS and AVGE against training seconds (redrawn at every record)."""
+    path = service.storage.artifact(job.id, "series_png")
+    if not path.is_file():
+        raise ServiceError(
+            404, "plot_not_ready", "no held-out record yet: the plot appears with the first one"
+        )
+    return FileResponse(path, media_type="image/png")

@@ -1,0 +1,182 @@
+"""``/v1/models/{id}``: a succeeded job's model — information, renders at any pose, exports."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import FileResponse
+from pydantic import ValidationError
+
+from sparsesplat.api.cameras import AxisConvention, PinholeCamera, PoseDirection
+from sparsesplat.api.jobs import Job, JobState, ModelInfo
+from sparsesplat.api.renders import RenderOutput, RenderRequest
+from sparsesplat.server.deps import OwnerDep, ServiceDep
+from sparsesplat.server.errors import ServiceError, invalid, not_found
+from sparsesplat.server.render_dispatch import NoRenderWorker, RenderFailed
+from sparsesplat.server.state import ServiceState
+from sparsesplat.server.uploads import pydantic_message
+
+router = APIRouter(prefix="/v1/models", tags=["models"])
+
+EXPORTS = {
+    "ply": ("ply", "application/octet-stream", "model.ply"),
+    "splat": ("splat", "application/octet-stream", "model.splat"),
+    "checkpoint": ("checkpoint", "application/octet-stream", "checkpoint.pt"),
+}
+"""Export format → (artifact kind, media type, download name)."""
+
+
+def _own_model(service: ServiceState, owner: str, model_id: str) -> Job:
+    job = service.jobs.get(model_id, owner)
+    if job is None:
+        raise not_found("model", model_id)
+    if job.state != JobState.succeeded:
+        raise ServiceError(
+            409,
+            "model_not_ready",
+            f"job {model_id} is {job.state.value}: a model exists once the job has succeeded",
+        )
+    return job
+
+
+@router.get("/{model_id}", response_model=ModelInfo, summary="Describe a trained model")
+def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
+    """Size, final held-out metrics, exports and the cameras it was trained with."""
+    _own_model(service, owner, model_id)
+    result = service.jobs.result(model_id) or {}
+    cameras_file = service.storage.upload_dir(model_id) / "cameras.json"
+    document = json.loads(cameras_file.read_text())
+    cameras = [
+        {**frame, "convention": document["convention"], "pose": document["pose"]}
+        for frame in document["frames"]
+    ]
+    exports = [name for name, (kind, _, _) in EXPORTS.items()
+               if service.storage.artifact(model_id, kind).is_file()]  # fmt: skip
+    return ModelInfo(
+        id=model_id,
+        n_gaussians=int(result.get("n_gaussians", 0)),
+        iterations=int(result.get("iterations", 0)),
+        metrics={k: result.get("metrics", {}).get(k) for k in ("psnr", "ssim", "lpips", "avge")},
+        exports=exports,
+        cameras=cameras,
+    )
+
+
+def _check_size(service: ServiceState, request: RenderRequest) -> None:
+    settings = service.settings
+    if request.path is not None and len(request.path) > settings.max_path_cameras:
+        raise ServiceError(
+            413, "path_too_long",
+            f"{len(request.path)} cameras; the limit is {settings.max_path_cameras} "
+            "(SPARSESPLAT_MAX_PATH_CAMERAS)",
+        )  # fmt: skip
+    for camera in request.cameras:
+        megapixels = (
+            (camera.width // request.downscale) * (camera.height // request.downscale) / 1e6
+        )
+        if megapixels > settings.max_render_megapixels:
+            raise ServiceError(
+                413, "render_too_large",
+                f"{camera.width}x{camera.height} / {request.downscale} is {megapixels:.1f} "
+                f"megapixels; the limit is {settings.max_render_megapixels:g} "
+                "(SPARSESPLAT_MAX_RENDER_MEGAPIXELS): ask for a downscale",
+            )  # fmt: skip
+
+
+async def _render(
+    service: ServiceState, owner: str, model_id: str, request: RenderRequest
+) -> Response:
+    wait = service.render_limit.acquire(owner)
+    if wait > 0:
+        raise ServiceError(
+            429, "rate_limited",
+            f"more than {service.settings.renders_per_second:g} renders per second for this key",
+            {"Retry-After": str(max(1, round(wait + 0.5)))},
+        )  # fmt: skip
+    await asyncio.to_thread(_own_model, service, owner, model_id)
+    _check_size(service, request)
+    started = time.perf_counter()
+    try:
+        answer = await service.renders.render(model_id, request)
+    except NoRenderWorker as exc:
+        raise ServiceError(503, "no_render_worker", str(exc), {"Retry-After": "5"}) from exc
+    except RenderFailed as exc:
+        if exc.status == 404:
+            raise not_found("model", model_id) from exc
+        raise ServiceError(500, "render_failed", str(exc)) from exc
+    service.metrics.render_seconds.observe(time.perf_counter() - started)
+    headers = {k: v for k, v in answer.headers.items() if k.lower().startswith("x-")}
+    return Response(answer.content, media_type=answer.headers["content-type"], headers=headers)
+
+
+@router.post(
+    "/{model_id}/render",
+    summary="Render the model at a camera (or a camera path)",
+    responses={200: {"content": {"image/png": {}, "application/zip": {}}}},
+)
+async def render_model(
+    model_id: str, request: RenderRequest, service: ServiceDep, owner: OwnerDep
+) -> Response:
+    """One camera → an image (or depth/alpha); a ``path`` → a ZIP of numbered frames."""
+    return await _render(service, owner, model_id, request)
+
+
+@router.get(
+    "/{model_id}/render",
+    summary="Render at a camera given in the query (for <img> tags)",
+    responses={200: {"content": {"image/png": {}}}},
+)
+async def render_model_get(
+    model_id: str,
+    service: ServiceDep,
+    owner: OwnerDep,
+    convention: AxisConvention,
+    pose: PoseDirection,
+    matrix: Annotated[str, Query(description="16 comma-separated numbers, row-major")],
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    output: RenderOutput = "png",
+    downscale: Annotated[int, Query(ge=1, le=16)] = 1,
+) -> Response:
+    """The same render as the POST form, with the camera in query parameters."""
+    try:
+        values = [float(v) for v in matrix.split(",")]
+    except ValueError as exc:
+        raise invalid("invalid_camera", "matrix: 16 comma-separated numbers expected") from exc
+    if len(values) != 16:
+        raise invalid("invalid_camera", f"matrix: 16 numbers expected, got {len(values)}")
+    try:
+        camera = PinholeCamera(
+            convention=convention, pose=pose,
+            matrix=[values[i : i + 4] for i in range(0, 16, 4)],
+            fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height,
+        )  # fmt: skip
+        request = RenderRequest(camera=camera, output=output, downscale=downscale)
+    except ValidationError as exc:
+        raise invalid("invalid_camera", pydantic_message(exc, "camera")) from exc
+    return await _render(service, owner, model_id, request)
+
+
+@router.get("/{model_id}/export/{format}", summary="Download the model")
+def export_model(
+    model_id: str,
+    format: Literal["ply", "splat", "checkpoint"],
+    service: ServiceDep,
+    owner: OwnerDep,
+) -> FileResponse:
+    """``ply`` (INRIA 3DGS layout with baked SH colour; opens in standard viewers), ``splat``
+    (antimatter15 layout) or ``checkpoint`` (sparsesplat's own, for resuming or rendering)."""
+    _own_model(service, owner, model_id)
+    kind, media, name = EXPORTS[format]
+    path = service.storage.artifact(model_id, kind)
+    if not path.is_file():
+        raise ServiceError(404, "export_missing", f"model {model_id} has no {format} export")
+    return FileResponse(path, media_type=media, filename=f"{model_id}-{name}")

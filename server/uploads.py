@@ -1,0 +1,266 @@
+"""Receiving a job's upload: validate every part, store it under our own names, or nothing.
+
+The multipart form of ``POST /v1/jobs`` carries:
+
+- ``cameras``: the ``cameras.json`` file (or text) — the one camera schema, ``api.cameras``;
+- ``images``: one file per frame; matched to frames by file name (a frame's ``image`` may
+  include folders, e.g. ``images/r_0.png``; the upload's file name is its last part);
+- ``depths``: optional depth maps named by the frames' ``depth`` entries (``.npy`` float or
+  16-bit ``.png``);
+- ``spec``: optional JSON :class:`~sparsesplat.api.jobs.JobSpec`.
+
+Everything is checked before anything is kept: formats from the file headers, image size from
+the header before decoding (a decompression bomb is refused without being decoded), then a
+full decode (truncated or corrupt files are refused). Accepted files are written into a staging
+folder under names we choose; the caller moves it into place in one rename once the job record
+exists, or discards it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import posixpath
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+from starlette.datastructures import FormData, UploadFile
+
+from sparsesplat.api.cameras import CamerasFile, Split
+from sparsesplat.api.jobs import JobSpec
+from sparsesplat.api.settings import Settings
+from sparsesplat.server.errors import ServiceError, invalid
+
+IMAGE_FORMATS = {"PNG": "png", "JPEG": "jpg", "WEBP": "webp"}
+"""Accepted image formats (as Pillow names them) and the extension they are stored with."""
+_FORM_FIELDS = {"cameras", "images", "depths", "spec"}
+
+
+@dataclass
+class Upload:
+    """A validated upload waiting in its staging folder."""
+
+    staging: Path
+    """Folder holding cameras.json, images/ and depth/ under our names."""
+    spec: JobSpec
+    """The job spec."""
+    n_train_views: int
+    """Training images."""
+    n_test_views: int
+    """Held-out images."""
+
+
+def pydantic_message(exc: ValidationError, prefix: str) -> str:
+    """One line naming each problem's location and what is wrong."""
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err.get("loc", ()))
+        msg = str(err.get("msg", "")).removeprefix("Value error, ")
+        parts.append(f"{prefix}{'.' + loc if loc else ''}: {msg}")
+    return "; ".join(parts)
+
+
+def _text(value: str | UploadFile) -> str:
+    if isinstance(value, UploadFile):
+        value.file.seek(0)
+        raw = value.file.read()
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise invalid("invalid_encoding", f"{value.filename}: not UTF-8 text") from exc
+    return value
+
+
+def _check_file_name(name: str | None, field: str) -> str:
+    if not name:
+        raise invalid("invalid_file_name", f"a '{field}' part has no file name")
+    if "/" in name or "\\" in name or name in (".", "..") or "\x00" in name:
+        raise invalid(
+            "invalid_file_name",
+            f"{field} file name {name!r} must be a plain name (no folders, no '..')",
+        )
+    return name
+
+
+def parse_spec(form: FormData) -> JobSpec:
+    """The ``spec`` part (empty spec when absent)."""
+    raw = form.get("spec")
+    if raw is None:
+        return JobSpec()
+    text = _text(raw)
+    try:
+        return JobSpec.model_validate_json(text or "{}")
+    except ValidationError as exc:
+        raise invalid("invalid_spec", pydantic_message(exc, "spec")) from exc
+
+
+def parse_cameras(form: FormData) -> CamerasFile:
+    """The ``cameras`` part, validated by the one camera schema."""
+    raw = form.get("cameras")
+    if raw is None:
+        raise invalid("missing_cameras", "missing the 'cameras' part (the cameras.json file)")
+    text = _text(raw)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise invalid("invalid_cameras", f"cameras.json is not valid JSON: {exc}") from exc
+    try:
+        return CamerasFile.model_validate(data)
+    except ValidationError as exc:
+        raise invalid("invalid_cameras", pydantic_message(exc, "cameras.json")) from exc
+
+
+def _image_info(data: bytes, name: str, settings: Settings) -> tuple[str, int, int]:
+    """(stored extension, width, height) of an image; ServiceError when refused."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            # We compare the size with our own limit below, before decoding.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data)) as image:
+                fmt = image.format or "?"
+                if fmt not in IMAGE_FORMATS:
+                    raise invalid(
+                        "unsupported_image",
+                        f"{name}: {fmt} images are not accepted; send PNG, JPEG or WebP",
+                    )
+                width, height = image.size
+                megapixels = width * height / 1e6
+                if megapixels > settings.max_megapixels:
+                    raise ServiceError(
+                        413,
+                        "image_too_large",
+                        f"{name}: {width}x{height} is {megapixels:.1f} megapixels; the limit is "
+                        f"{settings.max_megapixels:g} (SPARSESPLAT_MAX_MEGAPIXELS)",
+                    )
+                image.load()
+    except ServiceError:
+        raise
+    except Image.DecompressionBombError as exc:
+        raise ServiceError(413, "image_too_large", f"{name}: {exc}") from exc
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise invalid(
+            "corrupt_image", f"{name}: not a readable PNG/JPEG/WebP image ({exc})"
+        ) from exc
+    return IMAGE_FORMATS[fmt], width, height
+
+
+def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
+    """Stored extension of a depth map after checking it matches its image's size."""
+    import numpy as np
+
+    if name.lower().endswith(".npy"):
+        try:
+            stream = io.BytesIO(data)
+            version = np.lib.format.read_magic(stream)
+            shape, _, dtype = np.lib.format._read_array_header(stream, version)  # type: ignore[attr-defined]
+        except ValueError as exc:
+            raise invalid("invalid_depth", f"{name}: not a NumPy .npy file ({exc})") from exc
+        if dtype.kind != "f" or dtype.hasobject:
+            raise invalid("invalid_depth", f"{name}: depth must be float, got {dtype}")
+        if tuple(shape) != (height, width):
+            raise invalid(
+                "invalid_depth", f"{name}: depth is {shape}, its image is ({height}, {width})"
+            )
+        return "npy"
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            if image.format != "PNG" or image.mode not in ("I;16", "I", "I;16B"):
+                raise invalid("invalid_depth", f"{name}: depth PNG must be 16-bit greyscale")
+            if image.size != (width, height):
+                raise invalid(
+                    "invalid_depth", f"{name}: depth is {image.size}, its image {width}x{height}"
+                )
+            image.load()
+    except (UnidentifiedImageError, OSError) as exc:
+        raise invalid("invalid_depth", f"{name}: unreadable depth map ({exc})") from exc
+    return "png"
+
+
+def _files(form: FormData, field: str) -> dict[str, bytes]:
+    out: dict[str, bytes] = {}
+    for item in form.getlist(field):
+        if not isinstance(item, UploadFile):
+            raise invalid("invalid_upload", f"'{field}' parts must be files")
+        name = _check_file_name(item.filename, field)
+        if name in out:
+            raise invalid("duplicate_file", f"{field}: {name!r} uploaded twice")
+        item.file.seek(0)
+        out[name] = item.file.read()
+    return out
+
+
+def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload:
+    """Check the whole form and write it into ``staging``; ServiceError on the first problem."""
+    unknown = sorted(set(form.keys()) - _FORM_FIELDS)
+    if unknown:
+        raise invalid(
+            "invalid_upload",
+            f"unknown form part(s) {', '.join(unknown)}; "
+            f"expected {', '.join(sorted(_FORM_FIELDS))}",
+        )
+    spec = parse_spec(form)
+    cameras = parse_cameras(form)
+    images = _files(form, "images")
+    depths = _files(form, "depths")
+    if len(cameras.frames) > settings.max_images:
+        raise ServiceError(
+            413,
+            "too_many_images",
+            f"{len(cameras.frames)} frames; the limit is {settings.max_images} "
+            "(SPARSESPLAT_MAX_IMAGES)",
+        )
+    by_name = {posixpath.basename(f.image): f for f in cameras.frames}
+    if len(by_name) != len(cameras.frames):
+        raise invalid("invalid_cameras", "two frames name images with the same file name")
+    missing = sorted(set(by_name) - set(images))
+    extra = sorted(set(images) - set(by_name))
+    if missing:
+        raise invalid(
+            "missing_image",
+            f"cameras.json lists {len(cameras.frames)} frames but {len(images)} images were "
+            f"uploaded; missing: {', '.join(missing[:10])}",
+        )
+    if extra:
+        raise invalid(
+            "unlisted_image", f"uploaded image(s) not in cameras.json: {', '.join(extra[:10])}"
+        )
+    if spec.depth_prior == "uploaded" and not any(f.depth for f in cameras.frames):
+        raise invalid("missing_depth", "depth_prior 'uploaded' needs frames with a 'depth' file")
+    (staging / "images").mkdir()
+    frames: list[dict[str, Any]] = []
+    for index, frame in enumerate(cameras.frames):
+        name = posixpath.basename(frame.image)
+        ext, width, height = _image_info(images[name], name, settings)
+        if (frame.width, frame.height) not in ((None, None), (width, height)):
+            raise invalid(
+                "size_mismatch",
+                f"{name}: the image is {width}x{height} but cameras.json says "
+                f"{frame.width}x{frame.height}",
+            )
+        stored = f"images/{index:03d}.{ext}"
+        (staging / stored).write_bytes(images[name])
+        entry = frame.model_dump(mode="json", exclude_none=True)
+        entry.update(image=stored, width=width, height=height)
+        if frame.depth:
+            depth_name = posixpath.basename(frame.depth)
+            if depth_name not in depths:
+                raise invalid(
+                    "missing_depth", f"{name}: its depth file {depth_name!r} was not uploaded"
+                )
+            depth_ext = _depth_info(depths[depth_name], depth_name, width, height)
+            (staging / "depth").mkdir(exist_ok=True)
+            entry["depth"] = f"depth/{index:03d}.{depth_ext}"
+            (staging / entry["depth"]).write_bytes(depths[depth_name])
+        frames.append(entry)
+    document = cameras.model_dump(mode="json", exclude_none=True)
+    document["frames"] = frames
+    (staging / "cameras.json").write_text(json.dumps(document, indent=1))
+    n_test = sum(f.split == Split.test for f in cameras.frames)
+    return Upload(staging, spec, len(cameras.frames) - n_test, n_test)

@@ -1,0 +1,27 @@
+"""``sparsesplat worker``: run worker processes without the API (a second machine, compose)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options override the matching ``SPARSESPLAT_*`` settings."""
+    parser.add_argument("--train", type=int, help="training workers (SPARSESPLAT_WORKERS)")
+    parser.add_argument("--render", type=int, help="render workers (SPARSESPLAT_RENDER_WORKERS)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Migrate the database if needed, then supervise the workers until interrupted."""
+    from sparsesplat.api.logs import configure_logging
+    from sparsesplat.api.settings import load_settings
+    from sparsesplat.api.store.database import make_engine, migrate
+    from sparsesplat.worker.supervisor import Supervisor
+
+    settings = load_settings()
+    configure_logging(settings.log_level, json_lines=settings.log_json)
+    assert settings.database_url is not None
+    migrate(make_engine(settings.database_url))
+    train = settings.workers if args.train is None else args.train
+    render = settings.render_workers if args.render is None else args.render
+    return Supervisor(train, render).run()

@@ -1,0 +1,181 @@
+"""A render worker process: renders stored models at requested cameras, over loopback HTTP.
+
+The API process never renders (it must stay responsive, and it has no torch); it forwards each
+validated request here. Loaded models stay in an LRU cache with their view-independent part
+(the neural colour field's per-Gaussian features) precomputed, so a repeated render of one
+model costs a rasterization plus the small view-dependent colour step. One request at a time
+per process: the render uses every torch thread it is given.
+
+Protocol: ``POST /render`` with JSON ``{"model_id": ..., "request": RenderRequest}`` answers
+the encoded bytes (a ZIP of frames for a camera path); ``GET /healthz`` answers ``ok``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import threading
+import time
+import zipfile
+from collections import OrderedDict
+from http.server import BaseHTTPRequestHandler, HTTPServer
+from typing import Any
+
+from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.renders import MEDIA_TYPES, RenderRequest
+from sparsesplat.api.settings import Settings
+from sparsesplat.api.storage import Storage, StorageError
+from sparsesplat.api.store.database import make_engine
+from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
+from sparsesplat.worker.encode import DEPTH16_UNITS_PER_SCENE_UNIT, encode
+
+log = logging.getLogger("sparsesplat.render")
+
+
+class ModelCache:
+    """The most recently used trained models, ready to render."""
+
+    def __init__(self, storage: Storage, capacity: int, device: str) -> None:
+        """Keep at most ``capacity`` models of ``storage`` loaded on ``device``."""
+        self.storage = storage
+        self.capacity = capacity
+        self.device = device
+        self._models: OrderedDict[str, tuple[float, Any]] = OrderedDict()
+
+    def get(self, model_id: str) -> Any:
+        """The loaded model (reloaded when its checkpoint changed); FileNotFoundError if none."""
+        from sparsesplat.engine.train import load_model
+
+        path = self.storage.artifact(model_id, "checkpoint")
+        mtime = path.stat().st_mtime  # FileNotFoundError when the model does not exist
+        cached = self._models.get(model_id)
+        if cached is not None and cached[0] == mtime:
+            self._models.move_to_end(model_id)
+            return cached[1]
+        model = load_model(path, self.device)
+        self._models[model_id] = (mtime, model)
+        self._models.move_to_end(model_id)
+        while len(self._models) > self.capacity:
+            self._models.popitem(last=False)
+        return model
+
+    def __len__(self) -> int:
+        return len(self._models)
+
+
+def engine_camera(camera: PinholeCamera, downscale: int = 1) -> Any:
+    """The engine's Camera for a wire camera (converted to world-to-camera, OpenCV axes)."""
+    import torch
+
+    from sparsesplat.engine.camera import Camera
+
+    w2c = torch.tensor(camera.world_to_camera_opencv(), dtype=torch.float64).float()
+    s = float(downscale)
+    return Camera(
+        w2c, camera.fx / s, camera.fy / s, camera.cx / s, camera.cy / s,
+        max(1, camera.width // downscale), max(1, camera.height // downscale),
+    )  # fmt: skip
+
+
+class Renderer:
+    """Renders requests against the model cache."""
+
+    def __init__(self, cache: ModelCache) -> None:
+        """Render models held by ``cache``."""
+        self.cache = cache
+
+    def render(self, model_id: str, request: RenderRequest) -> tuple[bytes, str, dict[str, str]]:
+        """(body, media type, extra headers) for one request."""
+        model = self.cache.get(model_id)
+        frames = [self._one(model, cam, request) for cam in request.cameras]
+        headers = {}
+        if request.output == "depth16":
+            headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
+        if request.path is None:
+            return frames[0], MEDIA_TYPES[request.output], headers
+        suffix = {"jpeg": "jpg", "depth16": "png", "alpha": "png"}.get(
+            request.output, request.output
+        )
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+            for i, frame in enumerate(frames):
+                archive.writestr(f"{i:04d}.{suffix}", frame)
+        return buffer.getvalue(), MEDIA_TYPES["zip"], headers
+
+    def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
+        out = model.render(engine_camera(camera, request.downscale))
+        image = out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+        depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
+        return encode(request.output, image, depth, alpha, request.quality)
+
+
+def _handler(renderer: Renderer) -> type[BaseHTTPRequestHandler]:
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def log_message(self, format: str, *args: Any) -> None:  # quiet: the API logs requests
+            pass
+
+        def do_GET(self) -> None:
+            self._reply(200, b"ok", "text/plain", {})
+
+        def do_POST(self) -> None:
+            try:
+                length = int(self.headers.get("Content-Length", "0"))
+                payload = json.loads(self.rfile.read(length))
+                request = RenderRequest.model_validate(payload["request"])
+                body, media, headers = renderer.render(str(payload["model_id"]), request)
+            except (FileNotFoundError, StorageError):
+                self._reply(404, b'{"code":"model_not_found","message":"no such model"}',
+                            "application/json", {})  # fmt: skip
+                return
+            except Exception as exc:  # reported to the API, which answers 500 with the message
+                log.exception("render failed")
+                message = json.dumps({"code": "render_failed", "message": str(exc)[:500]})
+                self._reply(500, message.encode(), "application/json", {})
+                return
+            self._reply(200, body, media, headers)
+
+        def _reply(self, status: int, body: bytes, media: str, headers: dict[str, str]) -> None:
+            self.send_response(status)
+            self.send_header("Content-Type", media)
+            self.send_header("Content-Length", str(len(body)))
+            for key, value in headers.items():
+                self.send_header(key, value)
+            self.end_headers()
+            self.wfile.write(body)
+
+    return Handler
+
+
+def serve_renders(settings: Settings, host: str = "127.0.0.1", port: int = 0) -> None:
+    """Listen on ``host:port`` (0: any free port), register in the database, serve forever."""
+    import torch
+
+    assert settings.database_url is not None
+    torch.set_num_threads(settings.render_threads)
+    device = settings.device.value if settings.device.value != "auto" else (
+        "cuda" if torch.cuda.is_available() else "cpu"
+    )  # fmt: skip
+    cache = ModelCache(Storage(settings.data_dir), settings.render_cache_models, device)
+    server = HTTPServer((host, port), _handler(Renderer(cache)))
+    address = f"{host}:{server.server_address[1]}"
+    registry = WorkerRegistry(make_engine(settings.database_url))
+    worker_id = new_worker_id("render")
+    registry.register(worker_id, "render", address)
+
+    def beat() -> None:
+        while True:
+            time.sleep(settings.heartbeat_s)
+            try:
+                registry.beat(worker_id)
+            except Exception:
+                log.warning("render heartbeat failed", exc_info=True)
+
+    threading.Thread(target=beat, daemon=True, name="render-heartbeat").start()
+    log.info("render worker ready", extra={"address": address, "worker": worker_id})
+    try:
+        server.serve_forever()
+    finally:
+        registry.unregister(worker_id)

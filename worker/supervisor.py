@@ -1,0 +1,90 @@
+"""Keeps a set of worker processes running: N training workers and M render workers.
+
+Each worker is a fresh interpreter (``python -m sparsesplat.worker train|render``), so a crash,
+an out-of-memory kill or a hard stop after a cancel takes only that process; the supervisor
+starts a replacement (after a short back-off if it keeps dying). SIGTERM/SIGINT are passed on,
+and the supervisor waits for its children to finish gracefully.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from types import FrameType
+
+log = logging.getLogger("sparsesplat.supervisor")
+
+RESTART_BACKOFF_S = (0.5, 2.0, 5.0, 15.0)
+"""Delays before restarting a worker that died again soon after starting."""
+STABLE_AFTER_S = 60.0
+"""A worker that ran this long resets its back-off."""
+STOP_TIMEOUT_S = 60.0
+"""How long children get to stop gracefully before they are killed."""
+
+
+@dataclass
+class _Slot:
+    kind: str
+    process: subprocess.Popen[bytes] | None = None
+    started: float = 0.0
+    failures: int = 0
+    next_start: float = 0.0
+    history: list[int] = field(default_factory=list)
+
+
+class Supervisor:
+    """Starts and restarts worker processes until stopped."""
+
+    def __init__(self, train: int, render: int) -> None:
+        """``train`` training workers and ``render`` render workers."""
+        self.slots = [_Slot("train") for _ in range(train)] + [
+            _Slot("render") for _ in range(render)
+        ]
+        self._stopping = False
+
+    def run(self) -> int:
+        """Supervise until SIGTERM/SIGINT; returns 0."""
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+        while not self._stopping:
+            now = time.monotonic()
+            for slot in self.slots:
+                self._tend(slot, now)
+            time.sleep(0.2)
+        self._stop_all()
+        return 0
+
+    def _tend(self, slot: _Slot, now: float) -> None:
+        if slot.process is not None:
+            code = slot.process.poll()
+            if code is None:
+                return
+            slot.history.append(code)
+            lived = now - slot.started
+            slot.failures = 0 if lived > STABLE_AFTER_S else slot.failures + 1
+            delay = RESTART_BACKOFF_S[min(slot.failures, len(RESTART_BACKOFF_S) - 1)]
+            slot.next_start = now + delay
+            log.warning("worker exited; restarting",
+                        extra={"kind": slot.kind, "code": code, "restart_in_s": delay})  # fmt: skip
+            slot.process = None
+        if now >= slot.next_start:
+            slot.process = subprocess.Popen([sys.executable, "-m", "sparsesplat.worker", slot.kind])
+            slot.started = now
+
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        self._stopping = True
+
+    def _stop_all(self) -> None:
+        running = [s.process for s in self.slots if s.process is not None]
+        for process in running:
+            process.terminate()
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for process in running:
+            try:
+                process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                process.kill()

@@ -1,0 +1,92 @@
+"""A training worker process: claim a job, run it, store the outcome, repeat.
+
+Started by ``sparsesplat serve`` (embedded) or ``sparsesplat worker`` (workers alone). SIGTERM
+and SIGINT stop it gracefully: a running job checkpoints and goes back to the queue.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from types import FrameType
+
+from sparsesplat.api.jobs import JobState
+from sparsesplat.api.logs import job_context
+from sparsesplat.api.settings import Settings
+from sparsesplat.api.storage import Storage
+from sparsesplat.api.store.database import make_engine
+from sparsesplat.api.store.jobs import JobStore
+from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
+from sparsesplat.worker.heartbeat import JobHeartbeat
+from sparsesplat.worker.job_runner import run_job
+
+log = logging.getLogger("sparsesplat.worker")
+
+
+class TrainingWorker:
+    """Claims and runs jobs one at a time until stopped."""
+
+    def __init__(self, settings: Settings) -> None:
+        """A worker over the database and storage ``settings`` name."""
+        assert settings.database_url is not None
+        self.settings = settings
+        self.engine = make_engine(settings.database_url)
+        self.store = JobStore(self.engine, settings.max_attempts)
+        self.storage = Storage(settings.data_dir)
+        self.registry = WorkerRegistry(self.engine)
+        self.worker_id = new_worker_id("train")
+        self.current: JobHeartbeat | None = None
+        self._stop = threading.Event()
+
+    def stop(self, *_: object) -> None:
+        """Finish gracefully: the running job checkpoints and returns to the queue."""
+        self._stop.set()
+        if self.current is not None:
+            self.current.request_shutdown()
+
+    def run(self, max_jobs: int | None = None) -> int:
+        """Serve jobs until stopped (or ``max_jobs`` were run); returns how many ran."""
+        self._prepare_process()
+        self.registry.register(self.worker_id, "train")
+        log.info("training worker ready", extra={"worker": self.worker_id})
+        done = 0
+        try:
+            while not self._stop.is_set() and (max_jobs is None or done < max_jobs):
+                self.registry.beat(self.worker_id)
+                claim = self.store.claim(self.worker_id, self.settings.lease_s)
+                if claim is None:
+                    self._stop.wait(self.settings.poll_s)
+                    continue
+                done += 1
+                self.registry.beat(self.worker_id, claim.job_id)
+                with job_context(claim.job_id):
+                    log.info("job claimed", extra={"attempt": claim.attempt})
+                    self.current = JobHeartbeat(
+                        self.store, claim.job_id, self.worker_id, self.settings
+                    )
+                    outcome = run_job(claim, self.store, self.storage, self.settings, self.current)
+                    self.current = None
+                    if outcome.state == JobState.queued:
+                        self.store.release(claim.job_id, self.worker_id, outcome.message)
+                    else:
+                        self.store.finish(
+                            claim.job_id, self.worker_id, outcome.state, outcome.message,
+                            outcome.result,
+                        )  # fmt: skip
+                    log.info("job ended", extra={"state": outcome.state.value})
+        finally:
+            self.registry.unregister(self.worker_id)
+        return done
+
+    def _prepare_process(self) -> None:
+        import torch
+
+        torch.set_num_threads(self.settings.torch_threads)
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self._on_signal)
+            signal.signal(signal.SIGINT, self._on_signal)
+
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        log.info("stopping on signal", extra={"signal": signum})
+        self.stop()
