@@ -8,6 +8,8 @@ preset, a user override and a checkpointed config all round-trip through ``asdic
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,11 +38,17 @@ class TrainConfig:
     init_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     """Box for random init; None uses the scene's ``init_box``, else one fitted to the frusta."""
     init_points: int | None = None
-    """Number of random points; None: ``init_points_per_unit`` x largest box side / 1.3."""
-    init_points_per_unit: float = 50.0
-    """Reference LLFF rule: 50 points per unit of the largest (pre-1.3x) axis extent."""
+    """Number of random points; None: ``init_points_density`` x (largest side of the init box
+    / median distance from the training cameras to the box centre), clamped to
+    [``init_points_min``, ``init_points_max``]."""
+    init_points_density: float = 1000.0
+    """Automatic point count per "scene length" of the init box's largest side, the scene
+    length being the median camera-to-box-centre distance: a ratio of two lengths, so the
+    count does not depend on the scene's unit (the reference's 50 points per LLFF unit does).
+    1000 gives 1.0-1.7k points on the LLFF-format and instant-ngp scenes of shared/data, about
+    what the reference rule gave after its 1000-point floor."""
     init_points_min: int = 1000
-    """Lower bound on the automatic point count (keeps tiny-unit scenes usable)."""
+    """Lower bound on the automatic point count."""
     init_points_max: int = 100_000
     """Upper bound on the automatic point count (CPU budget)."""
     init_opacity: float = 0.1
@@ -59,7 +67,10 @@ class TrainConfig:
     """Finest grid resolution over the grid cube. Deviation: the reference uses 512 x bound
     (scene-unit dependent); a fixed value keeps results independent of scene scale."""
     background: tuple[float, float, float] | None = None
-    """Render background RGB; None uses the scene's background."""
+    """Background RGB in [0, 1] for targets and renders alike: images with alpha are
+    composited on it and the renderer blends onto it. None uses the scene's (white for images
+    with alpha, the object-capture convention; black for LLFF/DTU/instant-ngp photos). On the
+    command line ``--set background=white`` (or black, gray, or [r, g, b]) works too."""
 
     # -- learning rates (Adam, eps 1e-15) ------------------------------------------------
     lr_means_init: float = 0.016
@@ -229,8 +240,13 @@ class TrainConfig:
             raise ConfigError("depth_every and densify_interval must be >= 1")
         if self.eval_max_views is not None and self.eval_max_views < 1:
             raise ConfigError(f"eval_max_views must be >= 1 or None, got {self.eval_max_views}")
-        if self.background is not None and len(self.background) != 3:
-            raise ConfigError(f"background must be 3 values, got {self.background!r}")
+        if self.background is not None and (
+            len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background)
+        ):
+            raise ConfigError(
+                f"background must be 3 values in [0, 1] (or white, black, gray), got "
+                f"{self.background!r}"
+            )
         return self
 
     @property
@@ -268,8 +284,43 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise :class:`ConfigError`."""
-        return _apply(cls(), data)
+        """Inverse of :meth:`to_dict`; unknown keys raise :class:`ConfigError` (fields that
+        older versions had, :data:`RETIRED_FIELDS`, are dropped so old checkpoints load)."""
+        return _apply(cls(), {k: v for k, v in data.items() if k not in RETIRED_FIELDS})
+
+
+RETIRED_FIELDS = frozenset({"init_points_per_unit"})
+"""Fields of earlier versions, ignored when a stored config is read back."""
+
+BACKGROUND_NAMES: dict[str, tuple[float, float, float]] = {
+    "white": (1.0, 1.0, 1.0),
+    "black": (0.0, 0.0, 0.0),
+    "gray": (0.5, 0.5, 0.5),
+    "grey": (0.5, 0.5, 0.5),
+}
+"""Names accepted for ``background``."""
+
+
+def parse_background(value: Any) -> tuple[float, float, float] | None:
+    """``None``, a name from :data:`BACKGROUND_NAMES` or 3 numbers in [0, 1] -> RGB tuple;
+    anything else raises :class:`ConfigError` saying what is accepted."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        key = value.strip().lower()
+        if key in BACKGROUND_NAMES:
+            return BACKGROUND_NAMES[key]
+    else:
+        try:
+            rgb = tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            rgb = ()
+        if len(rgb) == 3 and all(math.isfinite(c) and 0.0 <= c <= 1.0 for c in rgb):
+            return (rgb[0], rgb[1], rgb[2])
+    raise ConfigError(
+        f"background must be white, black, gray or 3 numbers in [0, 1] like [1, 1, 1], "
+        f"got {value!r}"
+    )
 
 
 SCHEDULE_FIELDS = (
@@ -287,29 +338,56 @@ SCHEDULE_FIELDS = (
 """Fields counted in iterations, scaled by :meth:`TrainConfig.with_iterations`."""
 
 
+_FIELD_TYPES = {f.name: str(f.type) for f in dataclasses.fields(TrainConfig)}
+
+
+def _check_type(name: str, value: Any) -> None:
+    """ConfigError unless ``value`` fits the annotated type of field ``name`` (checked loosely:
+    ints are floats, lists are tuples; ``background`` is parsed separately)."""
+    if name == "background":
+        return
+    kinds = {k.strip().split("[")[0] for k in _FIELD_TYPES[name].split("|")}
+    ok = (
+        (value is None and "None" in kinds)
+        or (isinstance(value, bool) and "bool" in kinds)
+        or (isinstance(value, int) and not isinstance(value, bool) and kinds & {"int", "float"})
+        or (isinstance(value, float) and "float" in kinds)
+        or (isinstance(value, str) and "str" in kinds)
+        or (isinstance(value, list | tuple) and "tuple" in kinds)
+        or (isinstance(value, dict) and "dict" in kinds)
+    )
+    if not ok:
+        raise ConfigError(f"{name} must be {_FIELD_TYPES[name]}, got {value!r}")
+
+
 def _apply(config: TrainConfig, overrides: dict[str, Any]) -> TrainConfig:
     names = {f.name for f in dataclasses.fields(TrainConfig)}
     unknown = sorted(set(overrides) - names)
     if unknown:
-        raise ConfigError(f"unknown TrainConfig field(s): {', '.join(unknown)}")
+        hints = []
+        for name in unknown:
+            close = difflib.get_close_matches(name, sorted(names), n=1, cutoff=0.6)
+            hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
+        raise ConfigError(f"unknown TrainConfig field(s): {', '.join(hints)}")
     values = dict(overrides)
+    for key, value in values.items():
+        _check_type(key, value)
     for key in ("clean_iterations",):
         if key in values and values[key] is not None:
             values[key] = tuple(values[key])
     if values.get("init_box") is not None:
         values["init_box"] = tuple(tuple(float(v) for v in c) for c in values["init_box"])
-    if values.get("background") is not None:
-        values["background"] = tuple(float(v) for v in values["background"])
+    if "background" in values:
+        values["background"] = parse_background(values["background"])
     return dataclasses.replace(config, **values).validate()
 
 
 PRESETS: dict[str, dict[str, Any]] = {
     # LLFF: the dataclass defaults are the LLFF recipe (3 views, 504x378, 6000 iterations).
-    "llff": {"preset": "llff", "background": (0.0, 0.0, 0.0)},
+    "llff": {"preset": "llff"},
     # DTU: 3 views at 400x300, neural colour, hard + EMA-gated soft depth, larger patches.
     "dtu": {
         "preset": "dtu",
-        "background": (0.0, 0.0, 0.0),
         "init_points": 1000,
         "lr_means_init": 0.0016,
         "lr_means_final": 0.000016,
@@ -354,7 +432,26 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the background taken from the scene and a lighter point count.
     "default": {"preset": "default", "init_points_max": 50_000},
 }
+# Objects on an empty background (images with alpha): the Blender recipe without the parts
+# that only fit NeRF-synthetic's frame (its fixed [-1, 1]^3 init box, its forced white): the
+# init box comes from the cameras and the background from the scene (white with alpha).
+PRESETS["object"] = {
+    k: v for k, v in PRESETS["blender"].items() if k not in ("init_box", "background")
+} | {"preset": "object"}
 """Preset name → field overrides on top of the TrainConfig defaults."""
+
+PRESET_HELP: dict[str, str] = {
+    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe, 3 views",
+    "dtu": "DTU scans, and inward-looking captures of an object on a textured background: "
+    "slower centres, larger depth patches, soft depth gated by the hard-depth loss",
+    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, fixed "
+    "[-1, 1]^3 init box, hard depth every 10th iteration",
+    "object": "objects on an empty background (images with alpha, any unit): the Blender "
+    "recipe with the init box from the cameras and the scene's background",
+    "default": "forward-facing captures (phone photos of a scene, LLFF-like): the LLFF "
+    "recipe with a lighter point cap",
+}
+"""One line per preset: when to use it (``sparsesplat train --help`` prints these)."""
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:
