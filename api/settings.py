@@ -107,6 +107,8 @@ class Settings(BaseSettings):
     """Seconds an idle training worker waits before asking for a job again."""
     cancel_grace_s: float = Field(30.0, gt=0)
     """Seconds a cancelled job gets to stop by itself before its worker process is ended."""
+    checkpoint_interval_s: float = Field(120.0, gt=0)
+    """Training seconds between a job's checkpoints: the most work a dead worker loses."""
     max_attempts: int = Field(3, ge=1)
     """Starts allowed for a job whose worker keeps dying, before it fails."""
     readiness_max_age_s: float = Field(30.0, gt=0)

@@ -120,7 +120,7 @@ def _train(
     beat.set_phase("preparing")
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
     config = build_config(spec, scene)
-    config = _with_threads(config, settings)
+    config = _with_service_settings(config, settings)
     priors = None
     if config.uses_depth:
         from sparsesplat.engine.priors import compute_priors
@@ -188,10 +188,15 @@ def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
         log.warning("could not write the metrics series", exc_info=True)
 
 
-def _with_threads(config: Any, settings: Settings) -> Any:
+def _with_service_settings(config: Any, settings: Settings) -> Any:
+    """Thread count and checkpoint cadence are the deployment's, not the job's."""
     import dataclasses
 
-    return dataclasses.replace(config, threads=settings.torch_threads)
+    return dataclasses.replace(
+        config,
+        threads=settings.torch_threads,
+        checkpoint_interval_s=settings.checkpoint_interval_s,
+    )
 
 
 def _auto_device() -> str:

@@ -1,0 +1,170 @@
+"""A real service for tests: ``sparsesplat serve`` / ``sparsesplat worker`` as subprocesses on
+127.0.0.1, with a temporary data directory and short leases so failures resolve in seconds."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+FAST_SETTINGS = {
+    "SPARSESPLAT_HEARTBEAT_S": "0.5",
+    "SPARSESPLAT_LEASE_S": "4",
+    "SPARSESPLAT_POLL_S": "0.3",
+    "SPARSESPLAT_CANCEL_GRACE_S": "10",
+    "SPARSESPLAT_CHECKPOINT_INTERVAL_S": "1",
+    "SPARSESPLAT_LOG_JSON": "false",
+    "SPARSESPLAT_TORCH_THREADS": "1",
+    "SPARSESPLAT_RENDER_THREADS": "1",
+}
+"""Settings that make a test service fail over quickly."""
+
+FAST_SPEC = {"iterations": 30, "record_interval_s": 2.0, "depth_prior": "none", "color_model": "sh"}
+"""A job that trains in seconds (no prior, SH colour); for tests about the service."""
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class LiveService:
+    """The API and/or worker processes over one data directory."""
+
+    def __init__(self, data_dir: Path, env: dict[str, str] | None = None) -> None:
+        self.data_dir = data_dir
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.env = {
+            **os.environ,
+            **FAST_SETTINGS,
+            "SPARSESPLAT_DATA_DIR": str(data_dir),
+            "SPARSESPLAT_PORT": str(self.port),
+            **(env or {}),
+        }
+        self.api: subprocess.Popen[bytes] | None = None
+        self.workers: subprocess.Popen[bytes] | None = None
+        self.log = data_dir.parent / f"service-{self.port}.log"
+
+    def _spawn(self, *args: str) -> subprocess.Popen[bytes]:
+        out = self.log.open("ab")
+        return subprocess.Popen(
+            [sys.executable, "-m", "sparsesplat.client.cli", *args],
+            env=self.env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+
+    def start_api(self, with_workers: bool = True) -> None:
+        """``sparsesplat serve`` (its own workers unless ``with_workers`` is False)."""
+        args = ["serve"] if with_workers else ["serve", "--workers", "0", "--render-workers", "0"]
+        self.api = self._spawn(*args)
+        self.wait_healthy()
+
+    def start_workers(self, train: int = 1, render: int = 1) -> None:
+        """``sparsesplat worker`` beside an API started without workers."""
+        self.workers = self._spawn("worker", "--train", str(train), "--render", str(render))
+
+    def wait_healthy(self, timeout: float = 60) -> None:
+        """Until ``/healthz`` answers."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.api is not None and self.api.poll() is not None:
+                raise RuntimeError(f"server exited with {self.api.returncode}: {self.tail()}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.2)
+        raise TimeoutError(f"server not healthy after {timeout} s: {self.tail()}")
+
+    def wait_ready(self, timeout: float = 120) -> None:
+        """Until ``/readyz`` says a training and a render worker are up."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(self.url + "/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.3)
+        raise TimeoutError(f"service not ready after {timeout} s: {self.tail()}")
+
+    def kill_api(self) -> None:
+        """SIGKILL the API process (its workers, if separate, keep running)."""
+        assert self.api is not None
+        self.api.kill()
+        self.api.wait()
+
+    def stop(self) -> None:
+        """Stop everything this object started (whole process groups)."""
+        for proc in (self.api, self.workers):
+            if proc is not None and proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGTERM)
+        for proc in (self.api, self.workers):
+            if proc is None:
+                continue
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+    def tail(self, n: int = 3000) -> str:
+        """The end of the service log (for failure messages)."""
+        return self.log.read_text(errors="replace")[-n:] if self.log.exists() else ""
+
+
+def upload_parts(folder: Path, spec: dict[str, Any]) -> list[tuple[str, Any]]:
+    """Multipart parts of ``POST /v1/jobs`` for an upload folder (cameras.json + images)."""
+    cameras = json.loads((folder / "cameras.json").read_text())
+    parts: list[tuple[str, Any]] = [
+        ("cameras", ("cameras.json", (folder / "cameras.json").read_bytes(), "application/json")),
+        ("spec", (None, json.dumps(spec))),
+    ]
+    for frame in cameras["frames"]:
+        path = folder / frame["image"]
+        parts.append(("images", (path.name, path.read_bytes(), "image/png")))
+    return parts
+
+
+def submit(url: str, folder: Path, spec: dict[str, Any], **headers: str) -> dict[str, Any]:
+    """Submit a job; returns the job (asserts 201)."""
+    response = httpx.post(url + "/v1/jobs", files=upload_parts(folder, spec), headers=headers,
+                          timeout=60)  # fmt: skip
+    assert response.status_code == 201, response.text
+    return dict(response.json())
+
+
+def wait_state(url: str, job_id: str, states: set[str], timeout: float = 300) -> dict[str, Any]:
+    """Poll until the job is in one of ``states``."""
+    deadline = time.monotonic() + timeout
+    job: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
+        if job.get("state") in states:
+            return job
+        time.sleep(0.3)
+    raise TimeoutError(f"job {job_id} still {job.get('state')} after {timeout} s: {job}")
+
+
+def processes_of(service: LiveService) -> Iterator[int]:
+    """Pids of training workers registered in the database."""
+    import sqlalchemy as sa
+
+    engine = sa.create_engine(f"sqlite:///{service.data_dir / 'sparsesplat.db'}")
+    with engine.begin() as conn:
+        rows = conn.execute(sa.text("SELECT pid, job_id FROM workers WHERE kind='train'")).all()
+    engine.dispose()
+    for pid, _job in rows:
+        yield int(pid)
