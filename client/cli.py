@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from dataclasses import dataclass
 from types import ModuleType
@@ -36,12 +37,20 @@ COMMANDS: dict[str, Command] = {
     "health": Command(
         "sparsesplat.client.commands", "ask a running service whether it is up", None
     ),
-    "scene": Command("sparsesplat.engine.commands.scene", "inspect a posed scene folder", "engine"),
+    "scene": Command(
+        "sparsesplat.engine.commands.scene",
+        "inspect a scene folder: split, cameras, background, the preset train would choose",
+        "engine",
+    ),
     "train": Command(
-        "sparsesplat.engine.commands.train", "train a scene locally (paper protocol)", "engine"
+        "sparsesplat.engine.commands.train",
+        "train a scene locally (preset chosen from the scene; --help lists presets and priors)",
+        "engine",
     ),
     "render": Command(
-        "sparsesplat.engine.commands.render", "render a trained checkpoint at a camera", "engine"
+        "sparsesplat.engine.commands.render",
+        "render a trained checkpoint at a camera (JSON with convention and pose, see --help)",
+        "engine",
     ),
     "fetch-weights": Command(
         "sparsesplat.client.fetch_weights", "download LPIPS weights (needs network)", None
@@ -60,6 +69,34 @@ _EXTRA_MODULES = {
     "uvicorn",
     "starlette",
 }
+
+
+LOCAL_COMMANDS = frozenset({"scene", "train", "render", "fetch-weights", "health"})
+"""Commands that run in the foreground and log through :func:`configure_cli_logging` (the
+service commands configure logging from their settings)."""
+
+
+def configure_cli_logging() -> None:
+    """Send log records to stderr, one line each: ``SPARSESPLAT_LOG_LEVEL`` (default WARNING
+    for local commands, INFO shows e.g. the native extension loads) and
+    ``SPARSESPLAT_LOG_JSON`` (default false here: human-readable key=value lines)."""
+    from sparsesplat.api.logs import configure_logging
+
+    level = os.environ.get("SPARSESPLAT_LOG_LEVEL", "WARNING").strip().upper() or "WARNING"
+    if level not in ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"):
+        print(
+            f"sparsesplat: SPARSESPLAT_LOG_LEVEL={level!r} is not a level (DEBUG, INFO, "
+            "WARNING, ERROR); using WARNING",
+            file=sys.stderr,
+        )
+        level = "WARNING"
+    json_lines = os.environ.get("SPARSESPLAT_LOG_JSON", "false").strip().lower() in (
+        "1",
+        "true",
+        "yes",
+        "on",
+    )
+    configure_logging(level, json_lines=json_lines)
 
 
 def _missing_extra_message(name: str, command: Command, exc: ModuleNotFoundError) -> str:
@@ -95,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command is None:
             parser.print_help()
             return 2
+        if args.command in LOCAL_COMMANDS:
+            configure_cli_logging()
         return int(_load(args.command).run(args) or 0)
     except ModuleNotFoundError as exc:
         name = next((a for a in argv if a in COMMANDS), None)

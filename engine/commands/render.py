@@ -1,8 +1,9 @@
-"""``sparsesplat render CHECKPOINT --camera JSON -o OUT.png``: render a trained model.
+"""``sparsesplat render CHECKPOINT --camera CAMERA.json -o OUT.png``: render a trained model.
 
-The camera JSON holds ``fx, fy, cx, cy, width, height`` and either ``world_to_camera`` (4x4,
-OpenCV axes, the engine convention) or ``camera_to_world`` (4x4, OpenCV axes). No torch import at
-module level."""
+The camera is the service's render camera, :class:`sparsesplat.api.cameras.PinholeCamera`:
+``convention`` (opencv | opengl) and ``pose`` (camera_to_world | world_to_camera) are required,
+plus ``matrix`` (4x4 rigid), ``fx, fy, cx, cy, width, height`` (docs/cameras.md). No torch
+import at module level."""
 
 from __future__ import annotations
 
@@ -12,53 +13,151 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.engine.commands.common import (
+    CommandError,
+    check_device,
+    exit_code,
+    fail,
+    prepare_native,
+)
+
+IMAGE_SUFFIXES = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".webp": "WEBP"}
+"""Output suffix -> PIL format."""
+MAX_RENDER_SIDE = 8192
+"""Largest width or height a render may have (memory guard)."""
+EMPTY_RENDER_COVERAGE = 0.01
+"""A render whose mean alpha is below this sees (almost) nothing of the model: warn."""
+
+EPILOG = """camera JSON (a file, or the JSON itself inline):
+  {"convention": "opencv" | "opengl", "pose": "camera_to_world" | "world_to_camera",
+   "matrix": [[...4 numbers...], x4], "fx": ..., "fy": ..., "cx": ..., "cy": ...,
+   "width": ..., "height": ...}
+  opencv: +x right, +y down, +z forward (COLMAP); opengl: +x right, +y up, +z back (Blender).
+  The matrix must be rigid (rotation + translation). See docs/cameras.md.
+exit codes: 0 written, 2 bad input (checkpoint, camera, output path, device)."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the render options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = EPILOG
     parser.add_argument("checkpoint", help="checkpoint.pt or a run folder holding one")
-    parser.add_argument("--camera", required=True, help="camera JSON file (or inline JSON)")
-    parser.add_argument("-o", "--output", required=True, help="output PNG path")
+    parser.add_argument(
+        "--camera", required=True, help="camera JSON file, or inline JSON (see below)"
+    )
+    parser.add_argument(
+        "-o", "--output", required=True, help="output image (.png, .jpg or .webp; folders made)"
+    )
     parser.add_argument("--depth", default=None, help="also write the depth as .npy here")
-    parser.add_argument("--device", default="cpu", help="torch device")
+    parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
 
 
-def _camera(spec: str) -> Any:
+def read_camera_spec(spec: str) -> Any:
+    """The ``--camera`` value as a validated :class:`PinholeCamera`: inline JSON when it
+    starts with '{', else a file path. CommandError says what is wrong (file not found, not
+    JSON, which field)."""
+    from pydantic import ValidationError
+
+    from sparsesplat.api.cameras import PinholeCamera, describe_validation_error
+
+    text = spec.strip()
+    where = "--camera (inline JSON)"
+    if not text.startswith("{"):
+        path = Path(spec)
+        where = f"--camera {spec}"
+        if not path.is_file():
+            if path.exists():
+                raise CommandError(f"{where}: not a file")
+            raise CommandError(f"{where}: file not found")
+        try:
+            text = path.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise CommandError(f"{where}: cannot read ({exc})") from exc
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CommandError(f"{where}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise CommandError(
+            f"{where}: expected one camera object {{...}}, got {type(data).__name__}"
+        )
+    try:
+        camera = PinholeCamera.model_validate(data)
+    except ValidationError as exc:
+        raise CommandError(f"{where}: {describe_validation_error(exc, data)}") from exc
+    if max(camera.width, camera.height) > MAX_RENDER_SIDE:
+        raise CommandError(
+            f"{where}: {camera.width}x{camera.height} is larger than {MAX_RENDER_SIDE} pixels "
+            "on a side"
+        )
+    return camera
+
+
+def engine_camera(camera: Any) -> Any:
+    """:class:`PinholeCamera` -> the engine's :class:`Camera` (world-to-camera, OpenCV)."""
     import torch
 
     from sparsesplat.engine.camera import Camera
-    from sparsesplat.engine.errors import CameraError
 
-    text = Path(spec).read_text() if Path(spec).is_file() else spec
+    w2c = torch.tensor(camera.world_to_camera_opencv(), dtype=torch.float64).float()
+    return Camera(w2c, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+
+
+def _output_path(value: str, suffixes: dict[str, str], what: str) -> Path:
+    path = Path(value)
+    if path.suffix.lower() not in suffixes:
+        got = f"'{path.suffix}'" if path.suffix else "no suffix"
+        raise CommandError(
+            f"{what} {value}: {got}; name the file with one of {', '.join(suffixes)}"
+        )
+    if path.exists() and path.is_dir():
+        raise CommandError(f"{what} {value}: is a folder")
     try:
-        d = json.loads(text)
-        if "world_to_camera" in d:
-            w2c = torch.tensor(d["world_to_camera"], dtype=torch.float32)
-        else:
-            w2c = torch.linalg.inv(torch.tensor(d["camera_to_world"], dtype=torch.float64)).float()
-        return Camera(w2c, float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
-                      int(d["width"]), int(d["height"]))  # fmt: skip
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise CameraError(f"--camera {spec!r}: not a valid camera JSON ({exc})") from exc
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CommandError(f"{what} {value}: cannot create its folder ({exc})") from exc
+    return path
 
 
 def run(args: argparse.Namespace) -> int:
-    """Render one view to PNG; 0 on success, 2 on a bad input."""
+    """Render one view; 0 on success, 2 on a bad input (checkpoint, camera, path, device)."""
+    from sparsesplat.engine.errors import EngineError
+
+    try:
+        return _run(args)
+    except CommandError as exc:
+        return fail("render", str(exc))
+    except EngineError as exc:
+        return fail("render", str(exc), exit_code(exc))
+
+
+def _run(args: argparse.Namespace) -> int:
     import numpy as np
     from PIL import Image
 
-    from sparsesplat.engine.errors import EngineError
     from sparsesplat.engine.train import load_model
 
-    try:
-        model = load_model(args.checkpoint, args.device)
-        out = model.render(_camera(args.camera))
-    except EngineError as exc:
-        print(f"sparsesplat render: {exc}", file=sys.stderr)
-        return 2
+    camera = read_camera_spec(args.camera)
+    output = _output_path(args.output, IMAGE_SUFFIXES, "-o")
+    depth_path = _output_path(args.depth, {".npy": "npy"}, "--depth") if args.depth else None
+    device = check_device(args.device)
+    prepare_native(device)
+    model = load_model(args.checkpoint, device)
+    out = model.render(engine_camera(camera))
+    coverage = float(out.alpha.mean())
+    if coverage < EMPTY_RENDER_COVERAGE:
+        print(
+            f"sparsesplat render: warning: the camera sees (almost) nothing of the model "
+            f"({coverage:.1%} of pixels covered); check 'convention' and 'pose' (an OpenGL "
+            "matrix read as OpenCV looks backwards) and that the camera faces the scene",
+            file=sys.stderr,
+        )
     img = (out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
-    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(args.output)
-    if args.depth:
-        np.save(args.depth, out.depth[0].cpu().numpy())
-    print(args.output)
+    try:
+        Image.fromarray(img).save(output, format=IMAGE_SUFFIXES[output.suffix.lower()])
+        if depth_path is not None:
+            np.save(depth_path, out.depth[0].cpu().numpy())
+    except OSError as exc:
+        raise CommandError(f"cannot write the output ({exc})") from exc
+    print(output)
     return 0

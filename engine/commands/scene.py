@@ -45,10 +45,14 @@ def describe_scene(args: argparse.Namespace) -> dict[str, Any]:
     import torch
 
     from sparsesplat.engine.datasets import load_scene, source_image_count
+    from sparsesplat.engine.datasets.common import camera_layout, choose_preset, has_alpha
     from sparsesplat.engine.priors import compute_priors
 
     scene = load_scene(args.path, views=args.views, format=args.format)
     first = scene.train[0]
+    alpha = has_alpha(scene)
+    layout = camera_layout([v.camera for v in scene.train + scene.test])
+    preset_name, preset_reason = choose_preset(scene)
     info: dict[str, Any] = {
         "name": scene.name,
         "format": scene.format,
@@ -73,6 +77,21 @@ def describe_scene(args: argparse.Namespace) -> dict[str, Any]:
         "far": scene.far,
         "init_box": scene.init_box,
         "background": [float(c) for c in scene.background],
+        "background_reason": (
+            "NeRF-synthetic protocol: RGBA composited on white"
+            if scene.format == "blender"
+            else "images have alpha: composited on white (the object-capture convention)"
+            if alpha
+            else "no alpha channel: black, seen only where the model is empty"
+        ),
+        "alpha": alpha,
+        "layout": {
+            "kind": layout.kind,
+            "spread_deg": layout.spread_deg,
+            "converges": layout.converges,
+        },
+        "preset": preset_name,
+        "preset_reason": preset_reason,
         "masks": any(v.mask is not None for v in scene.train + scene.test),
         "prior": args.prior,
         "priors": [],
@@ -111,6 +130,16 @@ def _print_text(info: dict[str, Any]) -> None:
     print(f"train      {info['train_indices']}  ({', '.join(info['train_views'])})")
     print(f"test       {info['test_indices']}")
     print(f"near/far   {info['near']:.4g} / {info['far']:.4g}")
+    bg = info["background"]
+    print(
+        f"background {[round(c, 3) for c in bg]} ({info['background_reason']}; "
+        "train --set background=... changes it for targets and renders)"
+    )
+    lay = info["layout"]
+    print(
+        f"cameras    {lay['kind']} (view directions within {lay['spread_deg']:.0f}° of their mean)"
+    )
+    print(f"preset     {info['preset']} ({info['preset_reason']})")
     if info["init_box"]:
         lo, hi = info["init_box"]
         print(f"init box   {[round(x, 3) for x in lo]} .. {[round(x, 3) for x in hi]}")
@@ -137,10 +166,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         info = describe_scene(args)
     except EngineError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"sparsesplat scene: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(info, indent=1))
+        print(json.dumps(info, indent=1, allow_nan=False))
     else:
         _print_text(info)
     return 0

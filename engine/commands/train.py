@@ -1,4 +1,4 @@
-"""``sparsesplat train SCENE_DIR --out DIR``: train one scene locally with its paper protocol.
+"""``sparsesplat train SCENE_DIR --out DIR``: train one scene locally.
 
 No torch import at module level (the CLI imports this module to build its parser)."""
 
@@ -7,43 +7,107 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+import threading
+import time
+from typing import Any, TextIO
 
-_FORMAT_PRESET = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
+from sparsesplat.engine.commands.common import (
+    CommandError,
+    check_device,
+    exit_code,
+    fail,
+    json_line,
+    prepare_native,
+)
+
+PRIOR_KINDS = (
+    "pydnet (bundled PyDNet++ monocular depth, the default)",
+    "plane_sweep (geometric: photo-consistency between the training views; no network)",
+    "onnx:FILE (any MiDaS / DPT / Depth-Anything ONNX export; FILE in the models directory "
+    "or a path)",
+    "user (the depth maps uploaded with the scene: 'depth' in cameras.json)",
+    "none (no depth prior: photometric loss only, same as --no-depth)",
+)
+"""The ``--prior`` kinds, one line each for ``--help``."""
+
+PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
+"""Presets in the order ``--help`` lists them (``engine.train.config.PRESETS``)."""
+
+_PRESET_HELP = {
+    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe",
+    "dtu": "DTU scans, and inward-looking captures of an object on a textured background",
+    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box",
+    "object": "objects on an empty background (images with alpha), any unit: the Blender "
+    "recipe with the init box from the cameras",
+    "default": "forward-facing captures (phone photos of a scene): the LLFF recipe",
+}
+# When to use each preset. Kept here, not in engine.train.config, because this module must not
+# import torch at parse time; tests/cli checks that it names exactly the presets that exist.
+
+EPILOG = (
+    "presets (chosen from the scene when --preset is not given; the choice and the reason are "
+    "printed):\n"
+    + "\n".join(f"  {name:8s} {_PRESET_HELP[name]}" for name in PRESET_NAMES)
+    + "\n  automatic: the paper's preset for the llff, dtu and blender formats; otherwise "
+    "'object' when the images have alpha, 'dtu' when the cameras look inward at an object, "
+    "'default' when they face forward.\n\n"
+    "depth priors (--prior):\n" + "\n".join(f"  {kind}" for kind in PRIOR_KINDS) + "\n\n"
+    "background: one setting for targets and renders (--set background=white|black|gray|"
+    "[r,g,b]); by default white for images with alpha, else the format's (black).\n"
+    "output: a progress line on stderr and a summary on stdout; --json prints one JSON object "
+    "per line instead (kinds: preset, state, record, warning, result).\n"
+    "exit codes: 0 done, 1 training failed (diverged, collapsed), 2 bad input, 130 interrupted."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Register the train options."""
+    """Register the train options (presets and prior kinds are listed in the epilog)."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = EPILOG
     parser.add_argument("scene", help="scene folder (LLFF, Blender, DTU, instant-ngp, upload)")
     parser.add_argument("--out", required=True, help="output folder (checkpoint, metrics, exports)")
     parser.add_argument(
-        "--preset", default=None, help="llff | dtu | blender | default (default: from the format)"
+        "--preset",
+        default=None,
+        choices=PRESET_NAMES,
+        help="training recipe (default: chosen from the scene; see below)",
     )
-    parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")
+    parser.add_argument(
+        "--views", type=int, default=None, help="training views (default: the paper's)"
+    )
     parser.add_argument(
         "--iterations",
         type=int,
         default=None,
         help="train this many iterations; fewer than the preset's compress its schedule",
     )
-    parser.add_argument("--prior", default=None, help="depth prior setting (default: pydnet)")
+    parser.add_argument(
+        "--prior",
+        default=None,
+        metavar="KIND",
+        help="depth prior: pydnet (default), plane_sweep, onnx:FILE, user, none (see below)",
+    )
     parser.add_argument("--no-depth", action="store_true", help="train without depth losses")
     parser.add_argument("--seed", type=int, default=None, help="random seed")
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     parser.add_argument("--resume", default=None, help="continue from this checkpoint")
     parser.add_argument(
         "--set", action="append", default=[], metavar="FIELD=JSON",
-        help="override any TrainConfig field, value as JSON (repeatable)",
+        help="override any TrainConfig field, value as JSON (repeatable), e.g. "
+        "--set background=white --set lambda_dssim=0.3",
     )  # fmt: skip
-    parser.add_argument("--quiet", action="store_true", help="do not print progress records")
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object per line (no progress bar)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in args.set:
         key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--set {item!r}: expected FIELD=JSON")
+        if not sep or not key:
+            raise CommandError(f"--set {item!r}: expected FIELD=JSON, e.g. --set background=white")
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
@@ -57,34 +121,183 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def _clock(seconds: float) -> str:
+    seconds = max(0, int(seconds))
+    h, rest = divmod(seconds, 3600)
+    return f"{h}:{rest // 60:02d}:{rest % 60:02d}" if h else f"{rest // 60:02d}:{rest % 60:02d}"
+
+
+class ProgressLine:
+    """The default output: one line on ``stream`` redrawn in place (a TTY) with iteration /
+    total, elapsed, estimated remaining and the latest held-out PSNR beside the constant-
+    background baseline; on a non-TTY stream, one line per held-out record instead."""
+
+    def __init__(self, total: int, baseline: float | None, stream: TextIO) -> None:
+        """``baseline``: the PSNR of a constant background image (None: no held-out views)."""
+        self.total = total
+        self.baseline = baseline
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.start = time.monotonic()
+        self.start_iteration = 0
+        self.iteration = 0
+        self.psnr: float | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._width = 0
+
+    def text(self) -> str:
+        """The current line."""
+        done = self.iteration - self.start_iteration
+        elapsed = time.monotonic() - self.start
+        left = elapsed / done * (self.total - self.iteration) if done > 0 else None
+        frac = self.iteration / self.total if self.total else 1.0
+        bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
+        parts = [
+            f"{self.iteration}/{self.total} [{bar}]",
+            f"elapsed {_clock(elapsed)}",
+            f"left {_clock(left) if left is not None else '?'}",
+        ]
+        if self.psnr is not None:
+            base = f" (background {self.baseline:.2f})" if self.baseline is not None else ""
+            parts.append(f"PSNR {self.psnr:.2f} dB{base}")
+        return "  ".join(parts)
+
+    def draw(self, final: bool = False) -> None:
+        """Redraw the line (TTY only)."""
+        if not self.tty:
+            return
+        line = self.text()
+        pad = max(0, self._width - len(line))
+        self._width = len(line)
+        self.stream.write("\r" + line + " " * pad + ("\n" if final else ""))
+        self.stream.flush()
+
+    def record(self, iteration: int, psnr: float | None) -> None:
+        """A held-out record arrived."""
+        self.iteration = iteration
+        if psnr is not None:
+            self.psnr = psnr
+        if self.tty:
+            self.draw()
+        else:
+            self.stream.write(self.text() + "\n")
+            self.stream.flush()
+
+    def follow(self, trainer: Any) -> None:
+        """Redraw every half second from ``trainer.iteration`` (a background thread)."""
+        self.start_iteration = self.iteration = trainer.iteration
+        if not self.tty:
+            return
+
+        def loop() -> None:
+            while not self._stop.wait(0.5):
+                self.iteration = trainer.iteration
+                self.draw()
+
+        self._thread = threading.Thread(target=loop, daemon=True)
+        self._thread.start()
+
+    def close(self, iteration: int) -> None:
+        """Stop redrawing and end the line."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.iteration = iteration
+        self.draw(final=True)
+
+
+def _summary_text(metrics: dict[str, Any], artifacts: dict[str, str]) -> str:
+    def fmt(key: str, spec: str) -> str:
+        value = metrics.get(key)
+        return "n/a" if value is None else format(value, spec)
+
+    base = metrics.get("background_psnr")
+    lines = [
+        f"PSNR {fmt('psnr', '.2f')} dB"
+        + (f" (constant background: {base:.2f} dB)" if base is not None else "")
+        + f"  SSIM {fmt('ssim', '.3f')}  LPIPS {fmt('lpips', '.3f')}  AVGE {fmt('avge', '.3f')}",
+        f"{metrics.get('iterations')} iterations in {fmt('seconds', '.0f')} s of training, "
+        f"{metrics.get('n_gaussians')} Gaussians, preset {metrics.get('preset')}",
+    ]
+    lines += [f"{kind:12s} {path}" for kind, path in artifacts.items()]
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
-    """Load the scene, compute priors, train, write ``OUT/metrics.json``; 0 on success."""
-    from sparsesplat.engine.datasets import load_scene
+    """Load the scene, choose the preset, compute priors, train, write ``OUT/metrics.json``.
+
+    0 on success, 2 on bad input (scene, option, config), 1 when training fails."""
     from sparsesplat.engine.errors import EngineError
-    from sparsesplat.engine.train import ProgressRecord, Trainer, preset
 
     try:
-        scene = load_scene(args.scene, views=args.views)
-        name = args.preset or _FORMAT_PRESET.get(scene.format, "default")
-        config = preset(name, **_overrides(args))
-        if args.iterations is not None:
-            config = config.with_iterations(args.iterations)
-        priors = None
-        if config.uses_depth:
-            from sparsesplat.engine.priors import compute_priors
-
-            priors = compute_priors(scene, config.depth_prior)
-
-        def show(event: Any) -> None:
-            if isinstance(event, ProgressRecord) and not args.quiet:
-                print(json.dumps(event.to_dict()), flush=True)
-
-        trainer = Trainer(scene, config, priors, args.out, show, args.device, args.resume)
-        result = trainer.run()
+        return _run(args)
+    except CommandError as exc:
+        return fail("train", str(exc))
     except EngineError as exc:
-        print(f"sparsesplat train: {exc}", file=sys.stderr)
-        return 2
-    summary = {k: v for k, v in result.metrics.items()}
-    summary["artifacts"] = {k: str(v) for k, v in result.artifacts.items()}
-    print(json.dumps(summary, indent=1))
+        return fail("train", str(exc), exit_code(exc))
+
+
+def _run(args: argparse.Namespace) -> int:
+    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.datasets.common import choose_preset
+    from sparsesplat.engine.train import ProgressRecord, StateChange, Trainer, preset
+
+    out = sys.stdout
+
+    def emit(obj: dict[str, Any]) -> None:
+        if args.json:
+            out.write(json_line(obj) + "\n")
+            out.flush()
+
+    device = check_device(args.device)
+    overrides = _overrides(args)
+    if args.iterations is not None and args.iterations < 1:
+        raise CommandError(f"--iterations must be >= 1, got {args.iterations}")
+    scene = load_scene(args.scene, views=args.views)
+    if args.preset:
+        name, reason = args.preset, "--preset"
+    else:
+        name, reason = choose_preset(scene)
+    config = preset(name, **overrides)
+    if args.iterations is not None:
+        config = config.with_iterations(args.iterations)
+    emit({"kind": "preset", "preset": name, "reason": reason})
+    if not args.json and not args.quiet:
+        print(f"preset {name}: {reason}", file=sys.stderr, flush=True)
+    prepare_native(device, color=config.color_model == "neural")
+    priors = None
+    if config.uses_depth:
+        from sparsesplat.engine.priors import compute_priors
+
+        priors = compute_priors(scene, config.depth_prior)
+
+    bar: ProgressLine | None = None
+
+    def show(event: Any) -> None:
+        if isinstance(event, ProgressRecord):
+            emit(event.to_dict())
+            if bar is not None:
+                bar.record(event.iteration, event.psnr)
+        elif isinstance(event, StateChange):
+            emit(event.to_dict())
+
+    trainer = Trainer(scene, config, priors, args.out, show, device, args.resume)
+    if not args.json and not args.quiet:
+        bar = ProgressLine(config.iterations, trainer.background_psnr(), sys.stderr)
+        bar.follow(trainer)
+    try:
+        result = trainer.run()
+    finally:
+        if bar is not None:
+            bar.close(trainer.iteration)
+    artifacts = {k: str(v) for k, v in result.artifacts.items()}
+    for warning in result.metrics.get("warnings", []):
+        emit({"kind": "warning", "message": warning})
+        if not args.json:
+            print(f"sparsesplat train: warning: {warning}", file=sys.stderr, flush=True)
+    if args.json:
+        emit({"kind": "result", **result.metrics, "artifacts": artifacts})
+    else:
+        print(_summary_text(result.metrics, artifacts), flush=True)
     return 0

@@ -325,3 +325,26 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
                 f"{source}: frame {name!r}: camera is {dist[i]:.3g} from the others, which are "
                 f"about {typical:.3g} apart: a typo in its translation or a different unit?"
             )
+
+
+FORMAT_PRESETS = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
+"""Formats with a paper protocol -> its preset."""
+
+
+def choose_preset(scene: Scene) -> tuple[str, str]:
+    """The training preset for ``scene`` when the user named none, and why (one phrase).
+
+    Formats with a paper protocol get it (llff, dtu, blender). Otherwise: images with alpha
+    are an object on an empty background -> ``object``; cameras converging on an object with
+    a wide spread of view directions -> ``dtu`` (the paper's recipe for inward-looking object
+    captures on a textured background); anything else is forward-facing -> ``default`` (the
+    LLFF recipe)."""
+    if scene.format in FORMAT_PRESETS:
+        name = FORMAT_PRESETS[scene.format]
+        return name, f"{scene.format} format: the paper's protocol for it"
+    if has_alpha(scene):
+        return "object", "the images have alpha: an object on an empty background"
+    layout = camera_layout([v.camera for v in scene.train + scene.test])
+    if layout.kind == "inward-looking":
+        return "dtu", f"cameras are {layout.describe()}: an object capture"
+    return "default", f"cameras are {layout.describe()}"

@@ -432,26 +432,14 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the background taken from the scene and a lighter point count.
     "default": {"preset": "default", "init_points_max": 50_000},
 }
+"""Preset name → field overrides on top of the TrainConfig defaults (``sparsesplat train
+--help`` says when to use each)."""
 # Objects on an empty background (images with alpha): the Blender recipe without the parts
 # that only fit NeRF-synthetic's frame (its fixed [-1, 1]^3 init box, its forced white): the
 # init box comes from the cameras and the background from the scene (white with alpha).
 PRESETS["object"] = {
     k: v for k, v in PRESETS["blender"].items() if k not in ("init_box", "background")
 } | {"preset": "object"}
-"""Preset name → field overrides on top of the TrainConfig defaults."""
-
-PRESET_HELP: dict[str, str] = {
-    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe, 3 views",
-    "dtu": "DTU scans, and inward-looking captures of an object on a textured background: "
-    "slower centres, larger depth patches, soft depth gated by the hard-depth loss",
-    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, fixed "
-    "[-1, 1]^3 init box, hard depth every 10th iteration",
-    "object": "objects on an empty background (images with alpha, any unit): the Blender "
-    "recipe with the init box from the cameras and the scene's background",
-    "default": "forward-facing captures (phone photos of a scene, LLFF-like): the LLFF "
-    "recipe with a lighter point cap",
-}
-"""One line per preset: when to use it (``sparsesplat train --help`` prints these)."""
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:

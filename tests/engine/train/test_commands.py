@@ -37,7 +37,8 @@ def test_render_command_writes_png(tmp_path: Path) -> None:
     Trainer(scene, small(iterations=10), priors, tmp_path / "run").run()
     cam = scene.test[0].camera
     spec = {
-        "world_to_camera": cam.world_to_camera.tolist(),
+        "convention": "opencv", "pose": "world_to_camera",
+        "matrix": cam.world_to_camera.tolist(),
         "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
         "width": cam.width, "height": cam.height,
     }  # fmt: skip

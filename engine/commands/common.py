@@ -1,0 +1,117 @@
+"""Shared by the local commands (train, render, scene): exit codes, device checks, the native
+extension notice, JSON output. No torch import at module level."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import threading
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+EXIT_BAD_INPUT = 2
+"""Exit code for input the user can fix (scene, camera, option, checkpoint)."""
+EXIT_FAILED = 1
+"""Exit code for a run that failed on valid input (divergence, collapse, a build failure)."""
+
+NATIVE_NOTICE_AFTER_S = 2.0
+"""Say that the native extensions are being compiled when loading them takes longer."""
+
+
+class CommandError(Exception):
+    """A command-line input is wrong; the message says what and how to fix it."""
+
+
+def fail(command: str, message: str, code: int = EXIT_BAD_INPUT) -> int:
+    """Print ``sparsesplat COMMAND: message`` on stderr and return ``code``."""
+    print(f"sparsesplat {command}: {message}", file=sys.stderr, flush=True)
+    return code
+
+
+def exit_code(exc: BaseException) -> int:
+    """:data:`EXIT_FAILED` for runs that failed on valid input (training diverged, model
+    collapsed, rasterizer build failures), :data:`EXIT_BAD_INPUT` for everything else."""
+    from sparsesplat.engine.errors import RasterError, TrainingDiverged
+
+    failed = (TrainingDiverged, RasterError)
+    try:
+        from sparsesplat.engine.train import ModelCollapsed
+
+        failed = (*failed, ModelCollapsed)  # type: ignore[assignment]
+    except ImportError:  # pragma: no cover - the train package is part of the engine
+        pass
+    return EXIT_FAILED if isinstance(exc, failed) else EXIT_BAD_INPUT
+
+
+def check_device(device: str) -> str:
+    """Validate ``--device``: a torch device name that this torch build and machine can use.
+    Raises :class:`CommandError` saying why not (e.g. CUDA requested on a CPU-only torch)."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise CommandError(
+            f"--device {device!r} is not a torch device (cpu, cuda, cuda:1)"
+        ) from exc
+    if dev.type == "cuda":
+        if torch.version.cuda is None:
+            raise CommandError(
+                f"--device {device}: this torch build has no CUDA support (torch "
+                f"{torch.__version__}); use --device cpu, or install a CUDA build of torch "
+                "and gsplat (README, 'Install only what you need')"
+            )
+        if not torch.cuda.is_available():
+            raise CommandError(f"--device {device}: no CUDA GPU is visible; use --device cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise CommandError(
+                f"--device {device}: only {torch.cuda.device_count()} CUDA device(s) visible"
+            )
+    elif dev.type != "cpu":
+        raise CommandError(f"--device {device}: only cpu and cuda are supported")
+    return str(dev)
+
+
+def prepare_native(device: str, color: bool = True) -> None:
+    """Load (building on first use) the native CPU extensions before the work starts, saying
+    on stderr what is happening when it takes a while (the first build takes ~30 s)."""
+    if not device.startswith("cpu"):
+        return
+    from sparsesplat.engine.raster.build import load_extension, load_projection_extension
+
+    loaders = [load_extension, load_projection_extension]
+    if color:
+        from sparsesplat.engine.color.build import load_extension as load_hash_grid
+
+        loaders.append(load_hash_grid)
+    done = threading.Event()
+    where = os.environ.get("TORCH_EXTENSIONS_DIR") or "~/.cache/torch_extensions"
+
+    def notice() -> None:
+        if not done.wait(NATIVE_NOTICE_AFTER_S):
+            print(
+                "sparsesplat: building the native CPU extensions (rasterizer, hash grid): "
+                f"once after install or update, about half a minute; cached under {where}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    log.info("loading native CPU extensions (cache: %s)", where)
+    thread = threading.Thread(target=notice, daemon=True)
+    thread.start()
+    try:
+        for load in loaders:
+            load()
+    finally:
+        done.set()
+        thread.join()
+
+
+def json_line(obj: dict[str, Any]) -> str:
+    """One JSON object on one line; non-finite floats become null (valid JSON)."""
+    from sparsesplat.engine.train.trainer import json_safe
+
+    return json.dumps(json_safe(obj), allow_nan=False, default=str)
