@@ -1,0 +1,683 @@
+"""What a job uploads, built from a dataset folder or from images plus cameras — without torch.
+
+:func:`read_scene` reads every format the engine reads and picks the paper's training views
+(the split indices are kept here as data, the same numbers as the engine's
+``engine/datasets/splits.py``; a test checks they agree):
+
+- ``folder`` (``cameras.json``, the service's upload format): frames with split ``train``
+  (default all of them), held out: split ``test``;
+- ``llff`` (``poses_bounds.npy`` + ``images_8/`` or the next folder the engine prefers): 3
+  views evenly among images with i % 8 != 0, held out: i % 8 == 0;
+- ``blender`` (``transforms_{train,test}.json``): train frames 26, 86, 2, 55, 75, 93, 16, 73
+  (first 8), held out: every 8th frame of the test split;
+- ``dtu`` (``cameras_sphere.npz`` + ``images/``): cameras 25, 22, 28 (first 3 of the RegNeRF
+  order), held out: the 25 RegNeRF test ids;
+- ``ngp`` (``transforms.json``): the LLFF rule over frames sorted by file path (3 views).
+
+The JSON formats need nothing beyond the base install. ``poses_bounds.npy`` / ``.npz`` files,
+images other than PNG/JPEG/WebP, ``downscale`` and lens undistortion (instant-ngp ``k1, k2,
+p1, p2``) need the ``images`` extra (NumPy, Pillow). DTU object masks are not uploaded (the
+upload format has no masks); held-out scores of DTU jobs are therefore over the whole image.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import posixpath
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import ValidationError
+
+from sparsesplat.api.cameras import CamerasFile, PinholeCamera, describe_validation_error
+from sparsesplat.client import media
+from sparsesplat.client.errors import InvalidInput
+
+SceneFormat = Literal["folder", "llff", "blender", "dtu", "ngp"]
+"""Dataset formats :func:`read_scene` reads."""
+
+MARKERS: tuple[tuple[str, SceneFormat], ...] = (
+    ("cameras.json", "folder"),
+    ("poses_bounds.npy", "llff"),
+    ("transforms_train.json", "blender"),
+    ("cameras_sphere.npz", "dtu"),
+    ("transforms.json", "ngp"),
+)
+"""Marker file -> format, checked in this order (as the engine does)."""
+
+PAPER_VIEWS: dict[str, int] = {"llff": 3, "blender": 8, "dtu": 3, "ngp": 3}
+"""Training views by default: the paper's setting per format (an upload folder: all)."""
+
+PRESETS: dict[str, str] = {"llff": "llff", "blender": "blender", "dtu": "dtu"}
+"""The training preset a job from each format gets unless its spec names one."""
+
+LLFF_HOLDOUT = 8
+"""LLFF and instant-ngp: image i is held out when i % 8 == 0."""
+LLFF_IMAGE_DIRS = ("images_8", "images_4", "images_2", "images")
+"""LLFF image folders in the engine's order of preference (the paper's 8x first)."""
+DTU_TRAIN_ORDER = (25, 22, 28, 40, 44, 48, 0, 8, 13)
+"""DTU: the first n of these camera indices are the n training views."""
+DTU_TEST = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43,
+            45, 46, 47)  # fmt: skip
+"""DTU: the 25 held-out camera indices."""
+BLENDER_TRAIN_ORDER = (26, 86, 2, 55, 75, 93, 16, 73, 8)
+"""Blender: training frame indices of transforms_train.json (DietNeRF/FreeNeRF order)."""
+BLENDER_TEST_STRIDE = 8
+"""Blender: every 8th frame of transforms_test.json is held out."""
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+"""Files treated as images when a folder is listed (as the engine lists them)."""
+
+TestViews = int | Literal["all"]
+"""Held-out views to attach: ``"all"`` of the split's, a number (evenly spaced), or 0."""
+
+
+@dataclass
+class Upload:
+    """A job's upload: ``cameras.json`` and the files it names, ready to send."""
+
+    cameras: dict[str, Any]
+    """The cameras.json document (validated by :class:`~sparsesplat.api.cameras.CamerasFile`)."""
+    images: dict[str, bytes]
+    """Image bytes by the file name the frames use."""
+    depths: dict[str, bytes] = field(default_factory=dict)
+    """Depth maps by file name (optional)."""
+    preset: str | None = None
+    """Training preset for the source format (None: the server decides)."""
+    source: str = "images"
+    """Where it came from (a folder path and its format), for messages."""
+    train_indices: list[int] = field(default_factory=list)
+    """Indices of the training views in the source's own numbering."""
+    test_indices: list[int] = field(default_factory=list)
+    """Indices of the attached held-out views in the source's own numbering."""
+
+    @property
+    def n_train(self) -> int:
+        """Training frames."""
+        return sum(f.get("split", "train") == "train" for f in self.cameras["frames"])
+
+    @property
+    def n_test(self) -> int:
+        """Held-out frames."""
+        return sum(f.get("split") == "test" for f in self.cameras["frames"])
+
+    def test_cameras(self) -> list[PinholeCamera]:
+        """The held-out views as render cameras (to compare renders with their images)."""
+        return [self.camera(f["image"]) for f in self.cameras["frames"] if f.get("split") == "test"]
+
+    def train_cameras(self) -> list[PinholeCamera]:
+        """The training views as render cameras."""
+        return [
+            self.camera(f["image"])
+            for f in self.cameras["frames"]
+            if f.get("split", "train") == "train"
+        ]
+
+    def camera(self, image: str) -> PinholeCamera:
+        """The render camera of the frame whose image is ``image``."""
+        for frame in self.cameras["frames"]:
+            if frame["image"] == image:
+                width, height = frame.get("width"), frame.get("height")
+                if width is None or height is None:
+                    width, height = media.image_size(self.images[image], image)
+                return PinholeCamera(
+                    convention=self.cameras["convention"],
+                    pose=self.cameras["pose"],
+                    matrix=frame["matrix"],
+                    fx=frame["fx"],
+                    fy=frame["fy"],
+                    cx=frame["cx"],
+                    cy=frame["cy"],
+                    width=width,
+                    height=height,
+                )
+        raise KeyError(image)
+
+    def frame_names(self, split: str) -> list[str]:
+        """Image names of the frames of ``split`` in upload order."""
+        return [f["image"] for f in self.cameras["frames"] if f.get("split", "train") == split]
+
+    def validate(self) -> Upload:
+        """Check cameras.json against the schema and the files against the frames."""
+        try:
+            CamerasFile.model_validate(self.cameras)
+        except ValidationError as exc:
+            raise InvalidInput(
+                f"{self.source}: cameras: {describe_validation_error(exc, self.cameras)}"
+            ) from exc
+        names = [posixpath.basename(f["image"]) for f in self.cameras["frames"]]
+        missing = sorted(set(names) - set(self.images))
+        if missing:
+            raise InvalidInput(f"{self.source}: no image for frame(s) {', '.join(missing[:5])}")
+        return self
+
+
+# ---------------------------------------------------------------- splits (data, not engine)
+
+
+def _linspace_round(count: int, views: int) -> list[int]:
+    """``[round(k) for k in np.linspace(0, count - 1, views)]`` in pure Python (same floats:
+    NumPy computes ``i * step`` and sets the last value to the end point exactly)."""
+    if views == 1:
+        return [0]
+    step = (count - 1) / (views - 1)
+    values = [i * step for i in range(views)]
+    values[-1] = float(count - 1)
+    return [round(v) for v in values]
+
+
+def _check_views(views: int, available: int, source: str) -> None:
+    if views < 2:
+        raise InvalidInput(f"{source}: at least 2 training views are needed, got views={views}")
+    if views > available:
+        raise InvalidInput(f"{source}: {views} training views asked for, {available} available")
+
+
+def llff_split(count: int, views: int, source: str = "scene") -> tuple[list[int], list[int]]:
+    """(train, test) indices of ``count`` sorted images, LLFF protocol (as the engine)."""
+    test = [i for i in range(count) if i % LLFF_HOLDOUT == 0]
+    pool = [i for i in range(count) if i % LLFF_HOLDOUT != 0]
+    _check_views(views, len(pool), source)
+    return [pool[k] for k in _linspace_round(len(pool), views)], test
+
+
+def dtu_split(count: int, views: int, source: str = "scene") -> tuple[list[int], list[int]]:
+    """(train, test) camera indices of a DTU scan."""
+    _check_views(views, len(DTU_TRAIN_ORDER), source)
+    needed = max(*DTU_TRAIN_ORDER, *DTU_TEST)
+    if count <= needed:
+        raise InvalidInput(f"{source}: the DTU split needs {needed + 1} images, found {count}")
+    return list(DTU_TRAIN_ORDER[:views]), list(DTU_TEST)
+
+
+def blender_split(
+    train_count: int, test_count: int, views: int, source: str = "scene"
+) -> tuple[list[int], list[int]]:
+    """(train frame indices, test frame indices) of a NeRF-synthetic scene."""
+    _check_views(views, len(BLENDER_TRAIN_ORDER), source)
+    train = list(BLENDER_TRAIN_ORDER[:views])
+    if max(train) >= train_count:
+        raise InvalidInput(f"{source}: the split needs train frame {max(train)}, {train_count}")
+    return train, list(range(0, test_count, BLENDER_TEST_STRIDE))
+
+
+def _pick_tests(test: list[int], test_views: TestViews) -> list[int]:
+    if test_views == "all":
+        return test
+    if test_views < 0:
+        raise InvalidInput(f"test_views must be 'all' or >= 0, got {test_views}")
+    if test_views == 0 or not test:
+        return []
+    n = min(test_views, len(test))
+    return [test[k] for k in _linspace_round(len(test), n)]
+
+
+# ---------------------------------------------------------------- reading folders
+
+
+def detect_format(root: Path) -> SceneFormat:
+    """The format of a scene folder from its marker file."""
+    if not root.is_dir():
+        raise InvalidInput(f"{root}: scene folder not found")
+    for marker, fmt in MARKERS:
+        if (root / marker).is_file():
+            return fmt
+    raise InvalidInput(
+        f"{root}: unknown scene format (none of {', '.join(m for m, _ in MARKERS)} found)"
+    )
+
+
+def read_scene(
+    path: str | Path,
+    *,
+    views: int | None = None,
+    test_views: TestViews = "all",
+    downscale: int = 1,
+    format: SceneFormat | None = None,
+) -> Upload:
+    """An :class:`Upload` of the scene folder ``path`` with the paper's split.
+
+    Args:
+        path: the scene folder (any format in this module's table).
+        views: training views; None: the paper's count for the format (an upload folder: all
+            its training frames).
+        test_views: held-out views to attach (scored while training, for the error-against-
+            time record): ``"all"`` of the split's, a number taken evenly, or 0 for none.
+        downscale: integer factor to shrink every image by before upload (intrinsics follow);
+            needs the ``images`` extra.
+        format: force a format instead of detecting it from the marker files.
+    """
+    root = Path(path)
+    fmt = format or detect_format(root)
+    if not isinstance(downscale, int) or downscale < 1:
+        raise InvalidInput(f"downscale must be an integer >= 1, got {downscale!r}")
+    reader = {
+        "folder": _read_folder,
+        "llff": _read_llff,
+        "blender": _read_blender,
+        "dtu": _read_dtu,
+        "ngp": _read_ngp,
+    }.get(fmt)
+    if reader is None:
+        raise InvalidInput(f"{root}: unknown format {fmt!r}; expected one of folder, llff, ...")
+    upload = reader(root, views, test_views)
+    upload.source = f"{root} ({fmt})"
+    upload.preset = PRESETS.get(fmt)
+    if downscale != 1:
+        _downscale(upload, downscale)
+    return upload.validate()
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InvalidInput(f"{path}: cannot read ({exc})") from exc
+
+
+def _uploadable(data: bytes, name: str) -> tuple[bytes, str]:
+    """(bytes the service accepts, upload file name): PNG/JPEG/WebP as they are, other
+    formats converted to PNG (images extra)."""
+    if media.sniff(data) is not None:
+        return data, name
+    return media.to_png(data), posixpath.splitext(name)[0] + ".png"
+
+
+def _frame(
+    name: str,
+    matrix: Sequence[Sequence[float]],
+    k: tuple[float, float, float, float],
+    size: tuple[int, int],
+    split: str,
+) -> dict[str, Any]:
+    return {
+        "image": name,
+        "matrix": [[float(x) for x in row] for row in matrix],
+        "fx": float(k[0]),
+        "fy": float(k[1]),
+        "cx": float(k[2]),
+        "cy": float(k[3]),
+        "width": int(size[0]),
+        "height": int(size[1]),
+        "split": split,
+    }
+
+
+def _read_folder(root: Path, views: int | None, test_views: TestViews) -> Upload:
+    path = root / "cameras.json"
+    try:
+        document = json.loads(path.read_text())
+        cameras = CamerasFile.model_validate(document)
+    except (OSError, ValueError) as exc:
+        detail = (
+            describe_validation_error(exc, document) if isinstance(exc, ValidationError) else exc
+        )
+        raise InvalidInput(f"{path}: {detail}") from exc
+    frames = cameras.frames
+    pool = [i for i, f in enumerate(frames) if f.split == "train"]
+    tests = [i for i, f in enumerate(frames) if f.split == "test"]
+    count = len(pool) if views is None else views
+    _check_views(count, len(pool), str(path))
+    train = [pool[k] for k in _linspace_round(len(pool), count)]
+    chosen = train + _pick_tests(tests, test_views)
+    images: dict[str, bytes] = {}
+    depths: dict[str, bytes] = {}
+    out_frames = []
+    for i in chosen:
+        frame = frames[i]
+        data, name = _uploadable(_read(root / frame.image), posixpath.basename(frame.image))
+        if name in images:
+            raise InvalidInput(f"{path}: two frames' images are named {name!r}")
+        images[name] = data
+        entry = frame.model_dump(mode="json", exclude_none=True)
+        entry["image"] = name
+        if frame.depth:
+            depth_name = posixpath.basename(frame.depth)
+            depths[depth_name] = _read(root / frame.depth)
+            entry["depth"] = depth_name
+        out_frames.append(entry)
+    document = cameras.model_dump(mode="json", exclude_none=True)
+    document["frames"] = out_frames
+    return Upload(document, images, depths, train_indices=train, test_indices=chosen[len(train) :])
+
+
+def _list_images(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        raise InvalidInput(f"{folder}: image folder not found")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InvalidInput(f"{folder}: no image files")
+    return files
+
+
+def _numpy(what: str) -> Any:
+    return media.require("numpy", what)
+
+
+def _read_llff(root: Path, views: int | None, test_views: TestViews) -> Upload:
+    np = _numpy("reading LLFF poses_bounds.npy")
+    pb_path = root / "poses_bounds.npy"
+    try:
+        pb = np.load(pb_path, allow_pickle=False).astype(np.float64)
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"{pb_path}: cannot read ({exc})") from exc
+    folder = next((root / d for d in LLFF_IMAGE_DIRS if (root / d).is_dir()), None)
+    if folder is None:
+        raise InvalidInput(f"{root}: no image folder (looked for {', '.join(LLFF_IMAGE_DIRS)})")
+    files = _list_images(folder)
+    if pb.ndim != 2 or pb.shape[1] != 17 or len(pb) != len(files):
+        raise InvalidInput(f"{pb_path}: shape {pb.shape} for {len(files)} images in {folder}")
+    train, test = llff_split(len(files), views or PAPER_VIEWS["llff"], str(root))
+    chosen = train + _pick_tests(test, test_views)
+    images: dict[str, bytes] = {}
+    frames = []
+    for n, i in enumerate(chosen):
+        data, name = _uploadable(_read(files[i]), files[i].name)
+        width, height = media.image_size(data, name)
+        mat = pb[i, :15].reshape(3, 5)
+        h_full, w_full, focal = mat[:, 4]
+        down, right, back, centre = mat[:, 0], mat[:, 1], mat[:, 2], mat[:, 3]
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, -back, centre
+        k = (focal * width / w_full, focal * height / h_full, width / 2.0, height / 2.0)
+        images[name] = data
+        split = "train" if n < len(train) else "test"
+        frames.append(_frame(name, c2w.tolist(), k, (width, height), split))
+    document = {"convention": "opencv", "pose": "camera_to_world", "frames": frames}
+    return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
+
+
+def _transforms(path: Path) -> dict[str, Any]:
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"{path}: cannot parse JSON ({exc})") from exc
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        raise InvalidInput(f"{path}: no 'frames' list")
+    return meta
+
+
+def _frame_image(root: Path, frame: dict[str, Any], source: str) -> Path:
+    rel = frame.get("file_path")
+    if not isinstance(rel, str):
+        raise InvalidInput(f"{source}: frame without a 'file_path'")
+    path = (root / rel).resolve()
+    if path.suffix == "" or not path.is_file():
+        for suffix in (".png", ".jpg", ".jpeg"):
+            if path.with_name(path.name + suffix).is_file():
+                return path.with_name(path.name + suffix)
+    if not path.is_file():
+        raise InvalidInput(f"{source}: image {rel!r} not found under {root}")
+    return path
+
+
+def _intrinsics(
+    meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, source: str
+) -> tuple[float, float, float, float]:
+    """fx, fy, cx, cy of a transforms.json frame (per-frame keys override the header; fl_x in
+    pixels of w/h, rescaled to the image; else camera_angle_x), as the engine reads them."""
+
+    def get(key: str) -> Any:
+        return frame.get(key, meta.get(key))
+
+    sx, sy = width / float(get("w") or width), height / float(get("h") or height)
+    try:
+        if get("fl_x") is not None:
+            fx = float(get("fl_x")) * sx
+            fy = float(get("fl_y") if get("fl_y") is not None else get("fl_x")) * sy
+        elif get("camera_angle_x") is not None:
+            fx = 0.5 * width / math.tan(0.5 * float(get("camera_angle_x")))
+            angle_y = get("camera_angle_y")
+            fy = fx if angle_y is None else 0.5 * height / math.tan(0.5 * float(angle_y))
+        else:
+            raise InvalidInput(f"{source}: no focal length (fl_x or camera_angle_x)")
+        cx = float(get("cx")) * sx if get("cx") is not None else width / 2.0
+        cy = float(get("cy")) * sy if get("cy") is not None else height / 2.0
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"{source}: malformed intrinsics ({exc})") from exc
+    return fx, fy, cx, cy
+
+
+def _read_blender(root: Path, views: int | None, test_views: TestViews) -> Upload:
+    train_meta = _transforms(root / "transforms_train.json")
+    test_meta = _transforms(root / "transforms_test.json")
+    train, test = blender_split(
+        len(train_meta["frames"]),
+        len(test_meta["frames"]),
+        views or PAPER_VIEWS["blender"],
+        str(root),
+    )
+    chosen = [("train", train_meta, i) for i in train] + [
+        ("test", test_meta, i) for i in _pick_tests(test, test_views)
+    ]
+    images: dict[str, bytes] = {}
+    frames = []
+    for split, meta, i in chosen:
+        source = f"{root}/transforms_{split}.json frame {i}"
+        frame = meta["frames"][i]
+        path = _frame_image(root, frame, source)
+        data, name = _uploadable(_read(path), f"{split}_{path.name}")
+        width, height = media.image_size(data, name)
+        k = _intrinsics(meta, frame, width, height, source)
+        images[name] = data
+        frames.append(_frame(name, frame.get("transform_matrix"), k, (width, height), split))
+    document = {"convention": "opengl", "pose": "camera_to_world", "frames": frames}
+    tests = [i for s, _, i in chosen if s == "test"]
+    return Upload(document, images, train_indices=train, test_indices=tests)
+
+
+def _read_ngp(root: Path, views: int | None, test_views: TestViews) -> Upload:
+    path = root / "transforms.json"
+    meta = _transforms(path)
+    frames_in = sorted(meta["frames"], key=lambda f: str(f.get("file_path")))
+    train, test = llff_split(len(frames_in), views or PAPER_VIEWS["ngp"], str(root))
+    chosen = train + _pick_tests(test, test_views)
+    images: dict[str, bytes] = {}
+    frames = []
+    for n, i in enumerate(chosen):
+        frame = frames_in[i]
+        source = f"{path} {frame.get('file_path')}"
+        image_path = _frame_image(root, frame, source)
+        data, name = _uploadable(_read(image_path), image_path.name)
+        width, height = media.image_size(data, name)
+        k = _intrinsics(meta, frame, width, height, source)
+        coeffs = _distortion(meta, frame, source)
+        if any(coeffs):
+            data, name = _undistort(data, k, coeffs), posixpath.splitext(name)[0] + ".png"
+        images[name] = data
+        split = "train" if n < len(train) else "test"
+        frames.append(_frame(name, frame.get("transform_matrix"), k, (width, height), split))
+    document = {"convention": "opengl", "pose": "camera_to_world", "frames": frames}
+    return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
+
+
+def _distortion(
+    meta: dict[str, Any], frame: dict[str, Any], source: str
+) -> tuple[float, float, float, float]:
+    out = []
+    for key in ("k1", "k2", "p1", "p2"):
+        value = frame.get(key, meta.get(key, 0.0))
+        try:
+            out.append(float(value or 0.0))
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(f"{source}: distortion {key}={value!r} is not a number") from exc
+    if not all(math.isfinite(v) for v in out):
+        raise InvalidInput(f"{source}: distortion coefficients {out} contain NaN or inf")
+    return out[0], out[1], out[2], out[3]
+
+
+def _undistort(
+    data: bytes, k: tuple[float, float, float, float], coeffs: tuple[float, float, float, float]
+) -> bytes:
+    """Resample an image taken through an OpenCV radial-tangential lens into the ideal
+    pinhole image with the same intrinsics (bilinear, black outside), as the engine does."""
+    np = _numpy("undistorting instant-ngp images (k1, k2, p1, p2)")
+    image = np.asarray(media.decode_image(data).convert("RGB"), dtype=np.float32)
+    fx, fy, cx, cy = k
+    k1, k2, p1, p2 = coeffs
+    h, w = image.shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    x, y = (u - cx) / fx, (v - cy) / fy
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    xs = (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)) * fx + cx - 0.5
+    ys = (y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y) * fy + cy - 0.5
+    x0, y0 = np.floor(xs).astype(np.int64), np.floor(ys).astype(np.int64)
+    out = np.zeros_like(image)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            xi, yi = x0 + dx, y0 + dy
+            weight = (1 - np.abs(xs - xi)) * (1 - np.abs(ys - yi))
+            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            sample = image[np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
+            out += sample * (weight * inside)[..., None]
+    return media.encode_png((np.clip(out, 0, 255) + 0.5).astype(np.uint8))
+
+
+def _rq(matrix: Any) -> tuple[Any, Any]:
+    """K @ R factorisation of a 3x3 (K upper-triangular, positive diagonal)."""
+    np = _numpy("reading DTU cameras_sphere.npz")
+    flip = np.flipud(np.eye(3))
+    q, r = np.linalg.qr((flip @ matrix).T)
+    k = flip @ r.T @ flip
+    rot = flip @ q.T
+    d = np.diag(np.sign(np.diag(k)))
+    return k @ d, d @ rot
+
+
+def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
+    np = _numpy("reading DTU cameras_sphere.npz")
+    npz_path = root / "cameras_sphere.npz"
+    folder = root / "images" if (root / "images").is_dir() else root / "image"
+    files = _list_images(folder)
+    try:
+        cams = dict(np.load(npz_path, allow_pickle=False))
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"{npz_path}: cannot read ({exc})") from exc
+    train, test = dtu_split(len(files), views or PAPER_VIEWS["dtu"], str(root))
+    chosen = train + _pick_tests(test, test_views)
+    images: dict[str, bytes] = {}
+    frames = []
+    for n, i in enumerate(chosen):
+        keys = (f"world_mat_{i}", f"scale_mat_{i}")
+        if any(key not in cams for key in keys):
+            raise InvalidInput(f"{npz_path}: missing {' or '.join(keys)}")
+        p = (np.asarray(cams[keys[0]], np.float64) @ np.asarray(cams[keys[1]], np.float64))[:3]
+        k, rot = _rq(p[:, :3])
+        scale = k[2, 2]
+        k = k / scale
+        if np.linalg.det(rot) < 0:
+            rot, scale = -rot, -scale
+        t = np.linalg.solve(k, p[:, 3] / scale)
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = rot, t
+        data, name = _uploadable(_read(files[i]), files[i].name)
+        width, height = media.image_size(data, name)
+        images[name] = data
+        split = "train" if n < len(train) else "test"
+        intr = (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+        frames.append(_frame(name, w2c.tolist(), intr, (width, height), split))
+    document = {"convention": "opencv", "pose": "world_to_camera", "frames": frames}
+    return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
+
+
+def _downscale(upload: Upload, factor: int) -> None:
+    if upload.depths:
+        raise InvalidInput(f"{upload.source}: downscale with depth maps is not supported")
+    for frame in upload.cameras["frames"]:
+        name = frame["image"]
+        width, height = media.image_size(upload.images[name], name)
+        new_w, new_h = max(1, width // factor), max(1, height // factor)
+        upload.images[name] = media.resize(upload.images[name], new_w, new_h)
+        new_name = posixpath.splitext(name)[0] + ".png"
+        if new_name != name:
+            upload.images[new_name] = upload.images.pop(name)
+        frame.update(
+            image=new_name,
+            width=new_w,
+            height=new_h,
+            fx=frame["fx"] * new_w / width,
+            fy=frame["fy"] * new_h / height,
+            cx=frame["cx"] * new_w / width,
+            cy=frame["cy"] * new_h / height,
+        )
+
+
+# ---------------------------------------------------------------- images + cameras
+
+
+def from_images(
+    images: Sequence[Any],
+    cameras: Sequence[PinholeCamera],
+    *,
+    test_images: Sequence[Any] = (),
+    test_cameras: Sequence[PinholeCamera] = (),
+    names: Sequence[str] | None = None,
+) -> Upload:
+    """An :class:`Upload` of images with their cameras.
+
+    Each image is a file path (PNG/JPEG/WebP sent as they are), encoded bytes, a NumPy array
+    (H, W, 3|4; uint8 or float in [0, 1]) or a PIL image (arrays and PIL images need the
+    ``images`` extra). Cameras are :class:`PinholeCamera` (see :mod:`sparsesplat.client.cameras`
+    to build them from 4x4 matrices); their size must match the image. All cameras of one
+    upload share one ``convention`` and ``pose`` direction (converted if they differ)."""
+    if len(images) != len(cameras):
+        raise InvalidInput(f"{len(images)} images but {len(cameras)} cameras")
+    if len(test_images) != len(test_cameras):
+        raise InvalidInput(f"{len(test_images)} test images but {len(test_cameras)} cameras")
+    all_cams = list(cameras) + list(test_cameras)
+    if not all_cams:
+        raise InvalidInput("no images")
+    convention, pose = all_cams[0].convention, all_cams[0].pose
+    uploaded: dict[str, bytes] = {}
+    frames = []
+    given = list(names) if names is not None else None
+    for n, (image, cam) in enumerate(zip([*images, *test_images], all_cams, strict=True)):
+        split = "train" if n < len(images) else "test"
+        data, name = _image_bytes(image, n, split)
+        if given is not None:
+            name = given[n]
+        if name in uploaded:
+            name = f"{split}_{n:03d}_{name}"
+        width, height = media.image_size(data, name)
+        if (width, height) != (cam.width, cam.height):
+            raise InvalidInput(
+                f"{name}: the image is {width}x{height} but its camera says "
+                f"{cam.width}x{cam.height}"
+            )
+        matrix = cam.matrix
+        if (cam.convention, cam.pose) != (convention, pose):
+            matrix = _convert(cam, convention, pose)
+        uploaded[name] = data
+        frames.append(
+            _frame(name, matrix, (cam.fx, cam.fy, cam.cx, cam.cy), (width, height), split)
+        )
+    document = {"convention": convention.value, "pose": pose.value, "frames": frames}
+    return Upload(document, uploaded, source="images").validate()
+
+
+def _image_bytes(image: Any, n: int, split: str) -> tuple[bytes, str]:
+    if isinstance(image, str | Path):
+        path = Path(image)
+        return _uploadable(_read(path), path.name)
+    if isinstance(image, bytes | bytearray):
+        data = bytes(image)
+        kind = media.sniff(data)
+        if kind is None:
+            return media.to_png(data), f"{split}_{n:03d}.png"
+        return data, f"{split}_{n:03d}.{'jpg' if kind == 'jpeg' else kind}"
+    return media.encode_png(image, "an image array"), f"{split}_{n:03d}.png"
+
+
+def _convert(cam: PinholeCamera, convention: Any, pose: Any) -> list[list[float]]:
+    from sparsesplat.api.cameras import AxisConvention, PoseDirection, rigid_inverse
+    from sparsesplat.client.cameras import camera_to_world_opencv
+
+    m = camera_to_world_opencv(cam)
+    if AxisConvention(convention) == AxisConvention.opengl:
+        m = [[r[0], -r[1], -r[2], r[3]] for r in m]
+    if PoseDirection(pose) == PoseDirection.world_to_camera:
+        m = rigid_inverse(m)
+    return m
