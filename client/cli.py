@@ -37,6 +37,17 @@ COMMANDS: dict[str, Command] = {
     "health": Command(
         "sparsesplat.client.commands", "ask a running service whether it is up", None
     ),
+    "submit": Command(
+        "sparsesplat.client.commands.submit", "upload a scene folder or images as a job", None
+    ),
+    "status": Command("sparsesplat.client.commands.status", "show a job's state", None),
+    "watch": Command("sparsesplat.client.commands.watch", "follow a job's live events", None),
+    "jobs": Command("sparsesplat.client.commands.jobs", "list your jobs", None),
+    "export": Command(
+        "sparsesplat.client.commands.export", "download a model (.ply, .splat, checkpoint)", None
+    ),
+    "cancel": Command("sparsesplat.client.commands.cancel", "cancel a job", None),
+    "delete": Command("sparsesplat.client.commands.delete", "delete a job and its files", None),
     "scene": Command(
         "sparsesplat.engine.commands.scene",
         "inspect a scene folder: split, cameras, background, the preset train would choose",
@@ -48,9 +59,10 @@ COMMANDS: dict[str, Command] = {
         "engine",
     ),
     "render": Command(
-        "sparsesplat.engine.commands.render",
-        "render a trained checkpoint at a camera (JSON with convention and pose, see --help)",
-        "engine",
+        "sparsesplat.client.commands.render",
+        "render a model on the service, or a local checkpoint (engine extra); camera JSON "
+        "with convention and pose, see --help",
+        None,
     ),
     "fetch-weights": Command(
         "sparsesplat.client.fetch_weights", "download LPIPS weights (needs network)", None

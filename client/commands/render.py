@@ -1,0 +1,131 @@
+"""``sparsesplat render MODEL|CHECKPOINT (--camera FILE | --orbit N | --view SPLIT:I) -o OUT``.
+
+``MODEL`` is a model id on the service. When the argument is an existing local path (a
+checkpoint or a run folder), the local engine command renders it instead (engine extra).
+
+``--camera`` is a JSON file (or text) holding one camera in the service's schema
+(``convention``, ``pose``, ``matrix``, ``fx fy cx cy width height``; see docs/cameras.md) or a
+list of them (a camera path). ``OUT`` is an image (``.png .jpg .webp``, ``.npy`` for depth), a
+folder (one numbered file per camera of a path) or a video (``.mp4 .gif``; video extra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.renders import RenderOutput
+from sparsesplat.client.commands.common import add_connection, client, guarded
+from sparsesplat.client.errors import InvalidInput, MissingExtra, exit_code
+
+LOCAL_COMMAND = "sparsesplat.engine.commands.render"
+"""The engine's own render command, used for local checkpoints."""
+VIDEO_SUFFIXES = (".mp4", ".gif", ".webm", ".mov", ".mkv")
+"""Outputs written as a video of the camera path."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Target, cameras, output."""
+    parser.add_argument("target", metavar="MODEL|CHECKPOINT", help="model id or local checkpoint")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--camera", help="camera JSON file or text (one camera or a list)")
+    which.add_argument("--orbit", type=int, metavar="N", help="N cameras orbiting the model")
+    which.add_argument(
+        "--view", metavar="SPLIT:I", help="the I-th uploaded camera of SPLIT (e.g. test:0)"
+    )
+    parser.add_argument("-o", "--output", required=True, help="image, folder or video file")
+    parser.add_argument(
+        "--kind",
+        choices=["png", "jpeg", "webp", "depth16", "npy", "alpha"],
+        help="what to render (default from the output suffix, else png)",
+    )
+    parser.add_argument("--downscale", type=int, default=1, help="divide the size by N")
+    parser.add_argument("--arc", type=float, default=360.0, help="--orbit arc in degrees")
+    parser.add_argument("--fps", type=float, default=30.0, help="video frame rate")
+    local = parser.add_argument_group("local checkpoint (engine extra)")
+    local.add_argument("--depth", help="also write the depth as .npy here (local only)")
+    local.add_argument("--device", help="torch device (local only)")
+    add_connection(parser)
+
+
+def _cameras(args: argparse.Namespace, model: Any) -> list[PinholeCamera | dict[str, Any]]:
+    if args.camera:
+        text = Path(args.camera).read_text() if Path(args.camera).is_file() else args.camera
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InvalidInput(f"--camera: not valid JSON ({exc})") from exc
+        if isinstance(data, dict) and isinstance(data.get("path"), list):
+            data = data["path"]
+        items: list[Any] = data if isinstance(data, list) else [data]
+        return items  # the server validates and names what is wrong
+    if args.orbit:
+        orbit: list[PinholeCamera | dict[str, Any]] = list(
+            model.orbit(args.orbit, arc_deg=args.arc)
+        )
+        return orbit
+    if args.view:
+        split, _, index = args.view.partition(":")
+        views = model.cameras(split or "test")
+        try:
+            return [views[int(index or 0)]]
+        except (ValueError, IndexError):
+            raise InvalidInput(f"--view {args.view}: {len(views)} {split} cameras") from None
+    raise InvalidInput("give --camera FILE, --orbit N or --view SPLIT:I")
+
+
+def _local(args: argparse.Namespace) -> int:
+    """Hand a local checkpoint to the engine's render command."""
+    argv = [args.target, "-o", args.output]
+    if args.camera:
+        argv += ["--camera", args.camera]
+    if args.depth:
+        argv += ["--depth", args.depth]
+    if args.device:
+        argv += ["--device", args.device]
+    try:
+        module = importlib.import_module(LOCAL_COMMAND)
+        parser = argparse.ArgumentParser(prog="sparsesplat render")
+        module.add_arguments(parser)
+        return int(module.run(parser.parse_args(argv)) or 0)
+    except ModuleNotFoundError as exc:
+        missing = MissingExtra(exc.name or "torch", "engine", "rendering a local checkpoint")
+        print(f"sparsesplat render: {missing}", file=sys.stderr)
+        return exit_code(missing)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Render on the service (or locally for a checkpoint path); print what was written."""
+    if Path(args.target).exists():
+        return _local(args)
+
+    def body() -> int:
+        out = Path(args.output)
+        with client(args) as c:
+            model = c.model(args.target)
+            cameras = _cameras(args, model)
+            if out.suffix.lower() in VIDEO_SUFFIXES:
+                written = [model.video(cameras, out, fps=args.fps, downscale=args.downscale)]
+            elif len(cameras) > 1 or (args.orbit and not out.suffix):
+                kind: RenderOutput = args.kind or "png"
+                written = model.render_path_to(cameras, out, kind, downscale=args.downscale)
+            elif out.suffix:
+                written = [
+                    model.render_to(cameras[0], out, output=args.kind, downscale=args.downscale)
+                ]
+            else:
+                written = model.render_path_to(
+                    cameras, out, args.kind or "png", downscale=args.downscale
+                )
+        if args.json:
+            print(json.dumps({"model": args.target, "files": [str(p) for p in written]}))
+        else:
+            print("\n".join(str(p) for p in written))
+        return 0
+
+    return guarded(args, body)

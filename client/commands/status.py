@@ -1,0 +1,51 @@
+"""``sparsesplat status JOB``: a job's state, progress and outcome."""
+
+from __future__ import annotations
+
+import argparse
+
+from sparsesplat.api.jobs import Job
+from sparsesplat.client.commands.common import add_connection, client, dump, fmt_seconds, guarded
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The job id."""
+    parser.add_argument("job", help="job id")
+    add_connection(parser)
+
+
+def describe(job: Job) -> str:
+    """Human-readable lines for a job."""
+    lines = [f"{job.id}  {job.state.value}"]
+    if job.queue_position is not None:
+        lines.append(f"  queue position  {job.queue_position}")
+    p = job.progress
+    if p is not None:
+        total = f"/{p.total}" if p.total else ""
+        lines.append(
+            f"  iteration       {p.iteration}{total}  ({fmt_seconds(p.elapsed_s)} elapsed"
+            + (f", ~{fmt_seconds(p.eta_s)} left" if p.eta_s else "")
+            + ")"
+            + (f"  [{p.phase}]" if p.phase else "")
+        )
+        r = p.last_record
+        if r is not None and r.psnr is not None:
+            lines.append(f"  held-out PSNR   {r.psnr:.2f} dB (SSIM {r.ssim or 0:.3f})")
+    lines.append(f"  views           {job.n_train_views} train + {job.n_test_views} held out")
+    if job.error:
+        lines.append(f"  error           {job.error}")
+    if job.has_model:
+        lines.append(f"  model           sparsesplat render {job.id} ... / export {job.id}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the job; exit 0 whatever its state (4 when it does not exist)."""
+
+    def body() -> int:
+        with client(args) as c:
+            job = c.get_job(args.job)
+        print(dump(job) if args.json else describe(job))
+        return 0
+
+    return guarded(args, body)

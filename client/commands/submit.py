@@ -1,0 +1,126 @@
+"""``sparsesplat submit FOLDER | FILES... [--wait]``: upload a scene as a training job.
+
+A folder is read in any format the engine reads (LLFF, Blender, DTU, instant-ngp, an upload
+folder with cameras.json) with the paper's training views; files are images listed by a
+``--cameras`` cameras.json (frames matched by file name)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import posixpath
+import sys
+from pathlib import Path
+from typing import Any
+
+from sparsesplat.client.commands.common import add_connection, client, dump, guarded
+from sparsesplat.client.errors import InvalidInput, JobFailed
+from sparsesplat.client.scenes import Upload, read_scene
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Scene, split, spec and waiting options."""
+    parser.add_argument("paths", nargs="+", metavar="FOLDER|FILES", help="scene folder or images")
+    parser.add_argument("--cameras", help="cameras.json for FILES (frames matched by file name)")
+    scene = parser.add_argument_group("scene")
+    scene.add_argument("--views", type=int, help="training views (default: the paper's)")
+    scene.add_argument(
+        "--test-views", default="all", help="held-out views to attach: all (default), N or 0"
+    )
+    scene.add_argument("--downscale", type=int, default=1, help="shrink images by N first")
+    scene.add_argument("--format", choices=["folder", "llff", "blender", "dtu", "ngp"])
+    spec = parser.add_argument_group("job spec")
+    spec.add_argument("--spec", help="JobSpec as JSON text or a .json file")
+    spec.add_argument("--iterations", type=int, help="iterations to train")
+    spec.add_argument("--time-budget", type=float, metavar="S", help="training seconds instead")
+    spec.add_argument("--preset", choices=["llff", "dtu", "blender", "default"])
+    spec.add_argument("--seed", type=int)
+    parser.add_argument("--idempotency-key", help="reuse to make a retried submission safe")
+    parser.add_argument("--wait", action="store_true", help="wait for the end, with progress")
+    parser.add_argument("--timeout", type=float, metavar="S", help="give up waiting after S s")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_connection(parser)
+
+
+def _spec(args: argparse.Namespace) -> dict[str, Any]:
+    spec: dict[str, Any] = {}
+    if args.spec:
+        text = Path(args.spec).read_text() if Path(args.spec).is_file() else args.spec
+        try:
+            spec = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InvalidInput(f"--spec: not valid JSON ({exc})") from exc
+    for key, value in (
+        ("iterations", args.iterations),
+        ("time_budget_s", args.time_budget),
+        ("preset", args.preset),
+        ("seed", args.seed),
+    ):
+        if value is not None:
+            spec[key] = value
+    return spec
+
+
+def _test_views(value: str) -> int | str:
+    if value == "all":
+        return "all"
+    try:
+        return int(value)
+    except ValueError:
+        raise InvalidInput(f"--test-views: 'all' or a number, got {value!r}") from None
+
+
+def _upload(args: argparse.Namespace) -> Upload:
+    paths = [Path(p) for p in args.paths]
+    if len(paths) == 1 and paths[0].is_dir():
+        test_views = _test_views(args.test_views)
+        return read_scene(
+            paths[0],
+            views=args.views,
+            test_views=test_views,  # type: ignore[arg-type]
+            downscale=args.downscale,
+            format=args.format,
+        )
+    if not args.cameras:
+        raise InvalidInput("FILES need --cameras cameras.json (or give one scene folder)")
+    folder_like = {posixpath.basename(p.name): p for p in paths}
+    try:
+        document = json.loads(Path(args.cameras).read_text())
+    except (OSError, ValueError) as exc:
+        raise InvalidInput(f"--cameras {args.cameras}: {exc}") from exc
+    images: dict[str, bytes] = {}
+    for frame in document.get("frames", []):
+        name = posixpath.basename(str(frame.get("image", "")))
+        if name not in folder_like:
+            raise InvalidInput(f"cameras.json lists {name!r}, which is not among FILES")
+        images[name] = folder_like[name].read_bytes()
+        frame["image"] = name
+    return Upload(document, images, source=str(args.cameras)).validate()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Submit; print the job (id, or JSON); with --wait follow it to the end."""
+
+    def body() -> int:
+        upload = _upload(args)
+        key = args.idempotency_key or "auto"
+        with client(args) as c:
+            job = c.submit(upload, _spec(args), idempotency_key=key)
+            if not args.json:
+                print(
+                    f"submitted {job.id} ({upload.n_train} training + {upload.n_test} held-out "
+                    f"views, {upload.source})",
+                    file=sys.stderr,
+                )
+            if not args.wait:
+                print(dump(job.info) if args.json else job.id)
+                return 0
+            try:
+                final = job.wait(args.timeout, progress=False if args.no_progress else None)
+            except JobFailed as exc:
+                print(dump(exc.job) if args.json else exc.job.id)
+                raise
+            print(dump(final) if args.json else final.id)
+            return 0
+
+    return guarded(args, body)
