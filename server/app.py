@@ -19,7 +19,7 @@ from sparsesplat.api.settings import Settings, load_settings
 from sparsesplat.server.auth import Authenticator
 from sparsesplat.server.errors import ServiceError
 from sparsesplat.server.limits import BodySizeLimit
-from sparsesplat.server.routes import events, jobs, models, service
+from sparsesplat.server.routes import events, jobs, models, pages, service
 from sparsesplat.server.state import ServiceState
 
 log = logging.getLogger("sparsesplat.server")
@@ -97,4 +97,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     for router in (service.router, jobs.router, events.router, models.router):
         app.include_router(router)
+    app.include_router(pages.router)
     return app

@@ -1,0 +1,356 @@
+// The viewer: the trained model's .ply export (baked colour) drawn in the browser by Spark, a
+// Gaussian-splat renderer for three.js, with orbit controls; the uploaded cameras drawn as
+// frusta to jump to; and a button that renders the current pose on the server (the neural
+// colour, exactly) to show beside the browser's drawing.
+
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { SparkRenderer, SplatMesh } from "@sparkjsdev/spark";
+import { download, request } from "./api.js";
+import { centreAndForward, openglCameraToWorld, orbitCentre, pinhole, placeThreeCamera, threeCameraToPinhole } from "./cameras.js";
+import { renderUrl } from "./job.js";
+import { el, fmtBytes, toast } from "./ui.js";
+
+const FRUSTUM_COLOURS = { train: 0x2563eb, test: 0xf97316 };
+const MAX_WIDTH = 800;
+const MAX_HEIGHT = 600;
+/** The engine's rasterizer adds 0.3 px^2 to every projected covariance (3DGS's low-pass). */
+const PRE_BLUR = 0.3;
+
+const BACKGROUNDS = { white: 0xffffff, black: 0x000000, grey: 0x808080 };
+
+function backgroundFor(job) {
+  const spec = job.spec || {};
+  if (Array.isArray(spec.background)) return new THREE.Color(...spec.background);
+  const preset = (job.progress && job.progress.preset) || spec.preset;
+  if (preset === "dtu") return new THREE.Color(BACKGROUNDS.black);
+  if (preset === "blender" || preset === "object") return new THREE.Color(BACKGROUNDS.white);
+  return new THREE.Color(0x202020);
+}
+
+/** Line segments of a camera's frustum (pyramid to its image corners at `depth`), world frame. */
+function frustum(camera, depth, colour) {
+  const { width: w, height: h, fx, fy, cx, cy } = camera;
+  // OpenGL camera axes: +x right, +y up, looking down -z.
+  const corner = (u, v) => [((u - cx) / fx) * depth, (-(v - cy) / fy) * depth, -depth];
+  const c = [corner(0, 0), corner(w, 0), corner(w, h), corner(0, h)];
+  const o = [0, 0, 0];
+  const tip = [0, (cy / fy) * depth * 1.35, -depth]; // a roof on the top edge: which way is up
+  const segments = [o, c[0], o, c[1], o, c[2], o, c[3], c[0], c[1], c[1], c[2], c[2], c[3], c[3], c[0], c[0], tip, tip, c[1]];
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.Float32BufferAttribute(segments.flat(), 3));
+  const lines = new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ color: colour }));
+  lines.matrixAutoUpdate = false;
+  lines.matrix.set(...openglCameraToWorld(camera).flat());
+  lines.updateMatrixWorld(true);
+  return lines;
+}
+
+export function mount(container, { jobId }) {
+  let unmounted = false;
+  const urls = [];
+  const canvas = el("canvas#viewer-canvas", { tabindex: "0" });
+  const fpsBox = el("div.overlay.fps#viewer-fps", {}, "");
+  const loading = el("div.overlay.loading#viewer-loading", {}, "Loading the model…");
+  const wrap = el("div.canvas-wrap", {}, canvas, fpsBox, loading);
+  const cameraList = el("div.camera-list#viewer-cameras");
+  const renderButton = el("button#viewer-render", { type: "button", disabled: true }, "Render this view on the server");
+  const spin = el("input#viewer-spin", { type: "checkbox" });
+  const showFrusta = el("input#viewer-frusta", { type: "checkbox", checked: true });
+  const background = el(
+    "select#viewer-background",
+    {},
+    el("option", { value: "auto" }, "the model's"),
+    ...Object.keys(BACKGROUNDS).map((name) => el("option", { value: name }, name)),
+  );
+  const info = el("dl.details#viewer-info");
+  const pose = el("span#viewer-pose.muted", {}, "");
+  const compare = el("section.card#viewer-compare", { hidden: true });
+  container.append(
+    el("p", {}, el("a", { href: `#/jobs/${jobId}` }, "← Job ", el("code", {}, jobId))),
+    el(
+      "section.card.viewer",
+      {},
+      el("div.viewer-main", {}, wrap),
+      el(
+        "div.viewer-side",
+        {},
+        el("p.muted", {}, "Drag to orbit, right-drag to pan, wheel to zoom. Click a frustum or a camera below to jump to it."),
+        el("h3", {}, "Cameras"),
+        cameraList,
+        el("label.check", {}, showFrusta, " show camera frusta"),
+        el("label.check", {}, spin, " auto-rotate"),
+        el("label", {}, "Background ", background),
+        el("p", {}, renderButton),
+        el("p", {}, pose),
+        info,
+      ),
+    ),
+    compare,
+  );
+
+  const renderer = new THREE.WebGLRenderer({ canvas, antialias: false, alpha: false, powerPreference: "high-performance" });
+  renderer.setPixelRatio(1); // software WebGL in CI: one pixel per canvas pixel
+  const scene = new THREE.Scene();
+  const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 1000);
+  scene.add(camera);
+  let dirty = true;
+  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, onDirty: () => (dirty = true) });
+  scene.add(spark);
+  const frusta = new THREE.Group();
+  scene.add(frusta);
+  let controls = null;
+  let mesh = null;
+  let model = null;
+  let job = null;
+  let cameras = [];
+  let orbit = { centre: [0, 0, 0], scale: 1, up: [0, 1, 0] };
+  let pinned = null; // the wire camera jumped to, until the user moves
+  let size = { width: 640, height: 480 };
+  let aspect = 4 / 3;
+  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0 };
+  let resolveReady;
+  const ready = new Promise((resolve) => (resolveReady = resolve));
+
+  function layout() {
+    const available = Math.max(320, Math.min(MAX_WIDTH, wrap.clientWidth || MAX_WIDTH));
+    let width = available;
+    let height = Math.round(width / aspect);
+    if (height > MAX_HEIGHT) {
+      height = MAX_HEIGHT;
+      width = Math.round(height * aspect);
+    }
+    size = { width, height };
+    renderer.setSize(width, height, true);
+    camera.aspect = width / height;
+    camera.updateProjectionMatrix();
+    dirty = true;
+  }
+
+  function tick(now) {
+    if (controls && spin.checked) {
+      controls.update();
+      dirty = true;
+    }
+    if (dirty) {
+      dirty = false;
+      renderer.render(scene, camera);
+      stats.frames += 1;
+      stats.windowFrames += 1;
+    }
+    if (now - stats.windowStart >= 1000) {
+      stats.fps = (stats.windowFrames * 1000) / (now - stats.windowStart);
+      stats.windowStart = now;
+      stats.windowFrames = 0;
+      fpsBox.textContent = stats.fps > 0 ? `${stats.fps.toFixed(1)} fps` : "idle";
+    }
+  }
+
+  function jumpTo(index) {
+    const wire = cameras[index];
+    placeThreeCamera(camera, wire);
+    camera.aspect = size.width / size.height;
+    camera.updateProjectionMatrix();
+    const { centre, forward } = centreAndForward(wire);
+    const toCentre = orbit.centre.map((c, k) => c - centre[k]);
+    let distance = toCentre[0] * forward[0] + toCentre[1] * forward[1] + toCentre[2] * forward[2];
+    if (!(distance > 1e-6)) distance = orbit.scale;
+    controls.target.set(...centre.map((c, k) => c + forward[k] * distance));
+    pinned = wire;
+    spin.checked = false;
+    describePose();
+    for (const button of cameraList.querySelectorAll("button")) button.classList.toggle("active", Number(button.dataset.index) === index);
+    dirty = true;
+  }
+
+  function describePose() {
+    pose.textContent = pinned
+      ? `At camera #${pinned.index} (${pinned.split}): the server render uses it exactly (${pinned.width}×${pinned.height}).`
+      : `Free camera: the server render uses this canvas's pose and size (${size.width}×${size.height}).`;
+  }
+
+  /** The wire camera the server renders: the pinned camera as given, else the canvas's. */
+  function currentCamera() {
+    return pinned ? pinhole(pinned) : threeCameraToPinhole(camera, size.width, size.height);
+  }
+
+  async function renderExact() {
+    const wire = currentCamera();
+    renderer.render(scene, camera); // draw now so the snapshot is this exact pose
+    const snapshot = canvas.toDataURL("image/png");
+    renderButton.disabled = true;
+    const started = performance.now();
+    compare.hidden = false;
+    compare.replaceChildren(el("p.muted", {}, "Rendering on the server…"));
+    try {
+      const url = await renderUrl(jobId, wire, urls);
+      if (unmounted) return null;
+      const seconds = (performance.now() - started) / 1000;
+      compare.replaceChildren(
+        el("h3", {}, "This view: browser against server"),
+        el(
+          "div.pair",
+          {},
+          el("figure", {}, el("img#compare-viewer", { src: snapshot, alt: "browser drawing" }), el("figcaption", {}, `Browser (Spark, baked colour), ${size.width}×${size.height}`)),
+          el("figure", {}, el("img#compare-server", { src: url, alt: "server render", dataset: { camera: JSON.stringify(wire) } }), el("figcaption", {}, `Server (neural colour), ${wire.width}×${wire.height}, ${seconds.toFixed(2)} s`)),
+        ),
+        el("details", {}, el("summary", {}, "Camera sent (POST /v1/models/{id}/render)"), el("pre", {}, JSON.stringify({ camera: wire, output: "png" }, null, 1))),
+      );
+      return wire;
+    } catch (exc) {
+      compare.replaceChildren(el("p.error-text", {}, `Server render failed: ${exc.message}`));
+      return null;
+    } finally {
+      renderButton.disabled = false;
+    }
+  }
+
+  function setBackground() {
+    scene.background = background.value === "auto" ? backgroundFor(job) : new THREE.Color(BACKGROUNDS[background.value]);
+    dirty = true;
+  }
+
+  async function load() {
+    try {
+      job = await request(`/v1/jobs/${encodeURIComponent(jobId)}`);
+      if (job.state !== "succeeded") {
+        loading.textContent = `This job is ${job.state}: the viewer opens once it has succeeded.`;
+        return;
+      }
+      model = await request(`/v1/models/${jobId}`);
+    } catch (exc) {
+      loading.textContent = `Cannot open the model: ${exc.message}`;
+      return;
+    }
+    if (unmounted) return;
+    cameras = model.cameras.map((c, index) => ({ ...c, index }));
+    orbit = orbitCentre(cameras.filter((c) => c.split !== "test").length >= 2 ? cameras.filter((c) => c.split !== "test") : cameras);
+    aspect = cameras[0].width / cameras[0].height;
+    camera.near = orbit.scale * 0.01;
+    camera.far = orbit.scale * 100;
+    camera.up.set(...orbit.up);
+    layout();
+    controls = new OrbitControls(camera, canvas);
+    controls.target.set(...orbit.centre);
+    controls.autoRotateSpeed = 4;
+    controls.addEventListener("start", () => {
+      pinned = null;
+      describePose();
+      for (const b of cameraList.querySelectorAll("button.active")) b.classList.remove("active");
+    });
+    controls.addEventListener("change", () => (dirty = true));
+    spin.addEventListener("change", () => {
+      controls.autoRotate = spin.checked;
+      if (spin.checked) {
+        pinned = null;
+        describePose();
+      }
+    });
+    setBackground();
+    for (const wire of cameras) frusta.add(frustum(wire, orbit.scale * 0.12, FRUSTUM_COLOURS[wire.split] ?? 0x888888));
+    for (const [i, f] of frusta.children.entries()) f.userData.index = i;
+    cameraList.replaceChildren(
+      ...cameras.map((wire) =>
+        el(
+          `button.small.camera.${wire.split}`,
+          { type: "button", dataset: { index: String(wire.index), split: wire.split }, onclick: () => jumpTo(wire.index) },
+          `#${wire.index} ${wire.split}`,
+        ),
+      ),
+    );
+    jumpTo(cameras.findIndex((c) => c.split !== "test"));
+    renderer.setAnimationLoop(tick);
+
+    const started = performance.now();
+    let bytes;
+    try {
+      bytes = await download(`/v1/models/${jobId}/export/ply`, (loaded, total) => {
+        loading.textContent = `Loading the model… ${fmtBytes(loaded)}${total ? ` of ${fmtBytes(total)}` : ""}`;
+      });
+    } catch (exc) {
+      loading.textContent = `Cannot download the .ply: ${exc.message}`;
+      return;
+    }
+    if (unmounted) return;
+    loading.textContent = "Preparing the splats…";
+    mesh = new SplatMesh({ fileBytes: bytes, fileName: "model.ply" });
+    scene.add(mesh);
+    await mesh.initialized;
+    if (unmounted) return;
+    const seconds = (performance.now() - started) / 1000;
+    loading.hidden = true;
+    renderButton.disabled = false;
+    const n = mesh.packedSplats ? mesh.packedSplats.numSplats : model.n_gaussians;
+    info.replaceChildren(
+      ...[
+        ["Gaussians", n.toLocaleString()],
+        [".ply", `${fmtBytes(bytes.length)}, loaded in ${seconds.toFixed(1)} s`],
+        ["Trained", `${model.iterations} iterations`],
+        ["Held-out PSNR", model.metrics.psnr != null ? `${model.metrics.psnr.toFixed(2)} dB` : "–"],
+      ].flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]),
+    );
+    canvas.dataset.ready = "1";
+    dirty = true;
+    resolveReady(true);
+  }
+
+  // A click (not a drag) on a frustum jumps to its camera.
+  const raycaster = new THREE.Raycaster();
+  let down = null;
+  canvas.addEventListener("pointerdown", (e) => (down = [e.clientX, e.clientY]));
+  canvas.addEventListener("pointerup", (e) => {
+    if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 3 || !frusta.visible) return;
+    const rect = canvas.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((e.clientX - rect.left) / rect.width) * 2 - 1, -((e.clientY - rect.top) / rect.height) * 2 + 1);
+    raycaster.params.Line.threshold = orbit.scale * 0.01;
+    raycaster.setFromCamera(ndc, camera);
+    const hit = raycaster.intersectObjects(frusta.children, false)[0];
+    if (hit) jumpTo(hit.object.userData.index);
+  });
+  showFrusta.addEventListener("change", () => {
+    frusta.visible = showFrusta.checked;
+    dirty = true;
+  });
+  background.addEventListener("change", setBackground);
+  renderButton.addEventListener("click", renderExact);
+  const onResize = () => {
+    if (controls) layout();
+  };
+  window.addEventListener("resize", onResize);
+  load().catch((exc) => {
+    loading.textContent = `Viewer failed: ${exc.message}`;
+    toast(`Viewer: ${exc.message}`);
+  });
+
+  return {
+    name: "viewer",
+    ready,
+    stats,
+    camera,
+    canvas,
+    get controls() {
+      return controls;
+    },
+    get pinned() {
+      return pinned;
+    },
+    get size() {
+      return size;
+    },
+    get cameras() {
+      return cameras;
+    },
+    jumpTo,
+    currentCamera,
+    renderExact,
+    unmount() {
+      unmounted = true;
+      window.removeEventListener("resize", onResize);
+      renderer.setAnimationLoop(null);
+      if (controls) controls.dispose();
+      if (mesh) mesh.dispose();
+      renderer.dispose();
+      for (const url of urls) URL.revokeObjectURL(url);
+    },
+  };
+}
