@@ -810,8 +810,8 @@ class Trainer:
         if self.view_coverage:
             metrics["coverage"] = sum(self.view_coverage.values()) / len(self.view_coverage)
         warning = self.emptiness_warning(metrics.get("psnr"))
-        if warning:
-            log.warning("%s: %s", self.scene.name, warning)
+        if warning:  # surfaced by the caller (the CLI prints it, the service stores it)
+            log.info("%s: %s", self.scene.name, warning)
             metrics["warnings"] = [warning]
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
