@@ -12,9 +12,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-PresetName = Literal["llff", "dtu", "blender", "default"]
+PresetName = Literal["llff", "dtu", "blender", "object", "default"]
 """Training recipes (engine presets): ``llff`` forward-facing captures, ``dtu`` object on a
-dark background, ``blender`` object on white, ``default`` user uploads (LLFF recipe)."""
+dark background, ``blender`` synthetic object on white, ``object`` an object photographed with
+alpha (inward-looking cameras), ``default`` user uploads (LLFF recipe)."""
 
 ColorModelName = Literal["neural", "sh"]
 """Colour model: DNGaussian's neural colour field, or plain spherical harmonics."""
@@ -122,6 +123,10 @@ class Progress(BaseModel):
     """What the worker does now: ``preparing``, ``training``, ``evaluating``, ``exporting``…"""
     last_record: Record | None = None
     """The latest held-out record."""
+    preset: str | None = None
+    """The recipe in use (chosen from the scene when the spec named none)."""
+    preset_reason: str | None = None
+    """Why that recipe, when it was chosen from the scene."""
 
 
 class Job(BaseModel):

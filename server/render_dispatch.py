@@ -17,6 +17,8 @@ from sparsesplat.api.store.workers import WorkerInfo, WorkerRegistry
 
 WORKER_LIST_TTL_S = 2.0
 """How long the list of live render workers is reused before it is read again."""
+MAX_CONNECTIONS = 8
+"""Open connections from one API process to the render workers."""
 RENDER_TIMEOUT_S = 120.0
 """Longest a render may take (a long camera path at full size)."""
 
@@ -41,7 +43,11 @@ class RenderDispatcher:
         """Workers are looked up in ``registry``; stale after ``max_age_s`` without a beat."""
         self.registry = registry
         self.max_age_s = max_age_s
-        self._http = httpx.AsyncClient(timeout=RENDER_TIMEOUT_S)
+        # A worker renders one request at a time: a few connections keep it busy, and the
+        # rest of a burst waits in this pool instead of piling up in the worker's accept queue.
+        self._http = httpx.AsyncClient(
+            timeout=RENDER_TIMEOUT_S, limits=httpx.Limits(max_connections=MAX_CONNECTIONS)
+        )
         self._workers: list[WorkerInfo] = []
         self._read_at = 0.0
 

@@ -43,6 +43,7 @@ class JobHeartbeat:
         self._total: int | None = None
         self._phase = "preparing"
         self._record: Record | None = None
+        self._preset: tuple[str, str | None] | None = None
         self._last_iteration = -1
         self._cancel_seen_at: float | None = None
         self._stop = threading.Event()
@@ -73,6 +74,10 @@ class JobHeartbeat:
         """What the worker does now (shown in the job's progress)."""
         self._phase = phase
 
+    def set_preset(self, name: str, reason: str | None) -> None:
+        """The recipe in use and, when chosen from the scene, why."""
+        self._preset = (name, reason)
+
     def set_record(self, record: Record) -> None:
         """The newest held-out record."""
         self._record = record
@@ -92,6 +97,8 @@ class JobHeartbeat:
             eta_s=eta,
             phase=self._phase,
             last_record=self._record,
+            preset=self._preset[0] if self._preset else None,
+            preset_reason=self._preset[1] if self._preset else None,
         )
 
     def _loop(self) -> None:

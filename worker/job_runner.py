@@ -40,11 +40,16 @@ class Outcome:
     """Final metrics and sizes when it succeeded."""
 
 
-def build_config(spec: JobSpec, scene: Any) -> Any:
-    """The engine TrainConfig a spec asks for (preset chosen from the scene when not given)."""
+def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
+    """The engine TrainConfig a spec asks for, and why its preset was chosen (None when the
+    spec named it)."""
     from sparsesplat.engine.train import preset
 
-    name = spec.preset or _preset_for(scene)
+    reason = None
+    if spec.preset is not None:
+        name = spec.preset
+    else:
+        name, reason = _preset_for(scene)
     overrides: dict[str, Any] = {"seed": spec.seed}
     for key in ("depth_prior", "color_model", "hard_depth", "soft_depth", "background"):
         value = getattr(spec, key)
@@ -55,12 +60,16 @@ def build_config(spec: JobSpec, scene: Any) -> Any:
     config = preset(name, **overrides)
     if spec.iterations is not None:
         config = config.with_iterations(spec.iterations)
-    return config
+    return config, reason
 
 
-def _preset_for(scene: Any) -> str:
-    fmt = getattr(scene, "format", "folder")
-    return {"llff": "llff", "dtu": "dtu", "blender": "blender"}.get(fmt, "default")
+def _preset_for(scene: Any) -> tuple[str, str]:
+    """The engine's choice from the scene's background and camera layout, and why."""
+    from sparsesplat.engine.datasets.common import choose_preset
+
+    name, reason = choose_preset(scene)
+    log.info("preset chosen", extra={"preset": name, "reason": reason})
+    return name, reason
 
 
 def _budget_iterations(scene: Any, config: Any, priors: Any, budget_s: float, device: str) -> int:
@@ -119,7 +128,8 @@ def _train(
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
     beat.set_phase("preparing")
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
-    config = build_config(spec, scene)
+    config, reason = build_config(spec, scene)
+    beat.set_preset(config.preset, reason)
     config = _with_service_settings(config, settings)
     priors = None
     if config.uses_depth:

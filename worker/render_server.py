@@ -3,8 +3,8 @@
 The API process never renders (it must stay responsive, and it has no torch); it forwards each
 validated request here. Loaded models stay in an LRU cache with their view-independent part
 (the neural colour field's per-Gaussian features) precomputed, so a repeated render of one
-model costs a rasterization plus the small view-dependent colour step. One request at a time
-per process: the render uses every torch thread it is given.
+model costs a rasterization plus the small view-dependent colour step. One render at a time
+per process (connections are threaded): a render uses every torch thread it is given.
 
 Protocol: ``POST /render`` with JSON ``{"model_id": ..., "request": RenderRequest}`` answers
 the encoded bytes (a ZIP of frames for a camera path); ``GET /healthz`` answers ``ok``.
@@ -19,7 +19,7 @@ import threading
 import time
 import zipfile
 from collections import OrderedDict
-from http.server import BaseHTTPRequestHandler, HTTPServer
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from sparsesplat.api.cameras import PinholeCamera
@@ -84,11 +84,15 @@ class Renderer:
     def __init__(self, cache: ModelCache) -> None:
         """Render models held by ``cache``."""
         self.cache = cache
+        # Connections are served by threads (keep-alive from the API's pool must not block
+        # other connections), but renders run one at a time: each uses every torch thread.
+        self._lock = threading.Lock()
 
     def render(self, model_id: str, request: RenderRequest) -> tuple[bytes, str, dict[str, str]]:
         """(body, media type, extra headers) for one request."""
-        model = self.cache.get(model_id)
-        frames = [self._one(model, cam, request) for cam in request.cameras]
+        with self._lock:
+            model = self.cache.get(model_id)
+            frames = [self._one(model, cam, request) for cam in request.cameras]
         headers = {}
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
@@ -159,7 +163,8 @@ def serve_renders(settings: Settings, host: str = "127.0.0.1", port: int = 0) ->
         "cuda" if torch.cuda.is_available() else "cpu"
     )  # fmt: skip
     cache = ModelCache(Storage(settings.data_dir), settings.render_cache_models, device)
-    server = HTTPServer((host, port), _handler(Renderer(cache)))
+    ThreadingHTTPServer.request_queue_size = 128  # bursts of connections must not be refused
+    server = ThreadingHTTPServer((host, port), _handler(Renderer(cache)))
     address = f"{host}:{server.server_address[1]}"
     registry = WorkerRegistry(make_engine(settings.database_url))
     worker_id = new_worker_id("render")
