@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import re
 from enum import StrEnum
 from typing import Any, ClassVar
 
@@ -105,7 +106,8 @@ def _unknown_field_message(
     a foreign-format hint, the closest valid name here, or the closest name that belongs at
     another level of the file."""
     if name in foreign:
-        return f"unknown field {name!r} — {foreign[name]}", None
+        meant = [q for q in re.findall(r"'(\w+)'", foreign[name]) if q in valid]
+        return f"unknown field {name!r} — {foreign[name]}", meant[0] if meant else None
     close = difflib.get_close_matches(name, valid, n=1, cutoff=0.6)
     if close:
         return f"unknown field {name!r} — did you mean {close[0]!r}?", close[0]

@@ -63,14 +63,14 @@ class JobSpec(BaseModel):
     """Hard-depth pass (moves only centres); None: the preset's."""
     soft_depth: bool | None = None
     """Soft-depth pass (moves only opacities); None: the preset's."""
-    seed: int = Field(0, ge=0, le=2**31 - 1)
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
     """Random seed of the run."""
-    iterations: int | None = Field(None, ge=1, le=100_000)
+    iterations: int | None = Field(default=None, ge=1, le=100_000)
     """Iterations to train; fewer than the preset's compress its whole schedule."""
-    time_budget_s: float | None = Field(None, gt=0, le=7 * 24 * 3600)
+    time_budget_s: float | None = Field(default=None, gt=0, le=7 * 24 * 3600)
     """Training seconds to aim for instead of ``iterations``: the schedule is compressed to
     fit, from the iteration cost measured on this scene at the start of the run."""
-    record_interval_s: float | None = Field(None, gt=0, le=24 * 3600)
+    record_interval_s: float | None = Field(default=None, gt=0, le=24 * 3600)
     """Training seconds between held-out error records (the error-against-time curve);
     None: the preset's (60 s)."""
     background: tuple[float, float, float] | None = None

@@ -52,13 +52,13 @@ class RenderRequest(BaseModel):
 
     camera: PinholeCamera | None = None
     """One camera."""
-    path: list[PinholeCamera] | None = Field(None, min_length=1)
+    path: list[PinholeCamera] | None = Field(default=None, min_length=1)
     """A camera path: the answer is a ZIP of frames ``0000.png``, ``0001.png``…"""
     output: RenderOutput = "png"
     """What to return."""
-    downscale: int = Field(1, ge=1, le=16)
+    downscale: int = Field(default=1, ge=1, le=16)
     """Integer factor the image size and focal lengths are divided by."""
-    quality: int = Field(90, ge=1, le=100)
+    quality: int = Field(default=90, ge=1, le=100)
     """JPEG/WebP quality."""
 
     @model_validator(mode="after")

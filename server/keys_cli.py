@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"created {info.id} ({info.name}). The key, shown only now:\n{key}")
         return 0
     if args.action == "list":
-        rows = keys.list()
+        rows = keys.all()
         if args.json:
             for r in rows:
                 print(json.dumps({"id": r.id, "name": r.name, "created_at": r.created_at,

@@ -46,6 +46,7 @@ def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
     from sparsesplat.engine.train import preset
 
     reason = None
+    name: str
     if spec.preset is not None:
         name = spec.preset
     else:

@@ -31,7 +31,11 @@ def new_job_id() -> str:
 
 
 def _dt(value: float | None) -> datetime | None:
-    return None if value is None else datetime.fromtimestamp(value, UTC)
+    return None if value is None else _utc(value)
+
+
+def _utc(value: float) -> datetime:
+    return datetime.fromtimestamp(value, UTC)
 
 
 @dataclass(frozen=True)
@@ -123,7 +127,7 @@ class JobStore:
             ).scalar_one_or_none()
         return dict(value) if value else None
 
-    def list(
+    def page(
         self, owner: str, state: JobState | None = None, cursor: str | None = None, limit: int = 20
     ) -> tuple[list[Job], str | None]:
         """The owner's jobs, newest first, one page; returns (jobs, next cursor or None)."""
@@ -209,7 +213,7 @@ class JobStore:
                 .limit(limit)
             ).all()
         return [
-            Event(seq=r.seq, job_id=r.job_id, type=r.type, time=_dt(r.time), data=r.data)
+            Event(seq=r.seq, job_id=r.job_id, type=r.type, time=_utc(r.time), data=r.data)
             for r in rows
         ]
 
@@ -420,7 +424,7 @@ class JobStore:
             id=row.id,
             state=JobState(row.state),
             spec=JobSpec.model_validate(row.spec),
-            created_at=_dt(row.created_at),
+            created_at=_utc(row.created_at),
             started_at=_dt(row.started_at),
             finished_at=_dt(row.finished_at),
             queue_position=position,

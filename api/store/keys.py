@@ -62,7 +62,7 @@ class KeyStore:
             )
         return info, key
 
-    def list(self) -> list[KeyInfo]:
+    def all(self) -> list[KeyInfo]:
         """Every key, oldest first."""
         with self.engine.begin() as conn:
             rows = conn.execute(sa.select(api_keys).order_by(api_keys.c.created_at)).all()

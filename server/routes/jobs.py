@@ -23,7 +23,48 @@ RECORD_COLUMNS = list(Record.model_fields)
 """Columns of the CSV form of a job's metrics."""
 
 
-@router.post("", status_code=201, response_model=Job, summary="Submit a training job")
+UPLOAD_SCHEMA = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["cameras", "images"],
+                    "properties": {
+                        "cameras": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "cameras.json (see api/cameras.py)",
+                        },
+                        "images": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "one PNG/JPEG/WebP per frame, by file name",
+                        },
+                        "depths": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "optional depth maps named by the frames",
+                        },
+                        "spec": {"type": "string", "description": "JobSpec as JSON"},
+                    },
+                }
+            }
+        },
+    }
+}
+"""The multipart body of ``POST /v1/jobs``, for the OpenAPI schema (parsed by hand below so
+limits apply before anything is kept)."""
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=Job,
+    summary="Submit a training job",
+    openapi_extra=UPLOAD_SCHEMA,
+)
 async def submit_job(
     request: Request,
     response: Response,
@@ -87,7 +128,7 @@ def list_jobs(
 ) -> JobPage:
     """Your jobs, newest first; follow ``next_cursor`` for older ones."""
     try:
-        page, next_cursor = service.jobs.list(owner, state, cursor, limit)
+        page, next_cursor = service.jobs.page(owner, state, cursor, limit)
     except ValueError as exc:
         raise invalid("invalid_cursor", str(exc)) from exc
     return JobPage(jobs=page, next_cursor=next_cursor)

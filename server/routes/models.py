@@ -97,8 +97,8 @@ async def _render(
             f"more than {service.settings.renders_per_second:g} renders per second for this key",
             {"Retry-After": str(max(1, round(wait + 0.5)))},
         )  # fmt: skip
-    await asyncio.to_thread(_own_model, service, owner, model_id)
     _check_size(service, request)
+    await asyncio.to_thread(_own_model, service, owner, model_id)
     started = time.perf_counter()
     try:
         answer = await service.renders.render(model_id, request)

@@ -110,13 +110,13 @@ def test_pages_follow_the_cursor_newest_first(store: JobStore) -> None:
     seen: list[str] = []
     cursor = None
     while True:
-        page, cursor = store.list("alice", cursor=cursor, limit=2)
+        page, cursor = store.page("alice", cursor=cursor, limit=2)
         seen += [j.id for j in page]
         if cursor is None:
             break
     assert seen == ids[::-1]
     with pytest.raises(ValueError, match="cursor"):
-        store.list("alice", cursor="garbage!")
+        store.page("alice", cursor="garbage!")
 
 
 def test_keys_are_stored_hashed_and_revocable(store: JobStore) -> None:

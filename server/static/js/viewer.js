@@ -95,7 +95,7 @@ export function mount(container, { jobId }) {
   const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 1000);
   scene.add(camera);
   let dirty = true;
-  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, onDirty: () => (dirty = true) });
+  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, enableLod: false, onDirty: () => (dirty = true) });
   scene.add(spark);
   const frusta = new THREE.Group();
   scene.add(frusta);
@@ -328,8 +328,13 @@ export function mount(container, { jobId }) {
     stats,
     camera,
     canvas,
+    renderer,
+    spark,
     get controls() {
       return controls;
+    },
+    get mesh() {
+      return mesh;
     },
     get pinned() {
       return pinned;

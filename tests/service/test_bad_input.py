@@ -1,0 +1,220 @@
+"""Bad input gets a 4xx naming the problem, and leaves no job and no file behind.
+
+In-process (the ASGI app with its lifespan, no workers): these are about validation only.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from sparsesplat.api.settings import Settings
+from sparsesplat.server.app import create_app
+
+SIZE = 32
+
+
+def _png(width: int = SIZE, height: int = SIZE, seed: int = 0) -> bytes:
+    rng = np.random.default_rng(seed)
+    buffer = io.BytesIO()
+    Image.fromarray(rng.integers(0, 255, (height, width, 3), dtype=np.uint8)).save(buffer, "PNG")
+    return buffer.getvalue()
+
+
+def _png_bomb(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width`` x ``height`` pixels but carries almost no data:
+    anything that decodes it before checking the size would allocate gigabytes."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        body = kind + data
+        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    idat = zlib.compress(b"\x00" * 1024)
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+    )
+
+
+def _frame(name: str, split: str = "train", x: float = 0.0) -> dict[str, Any]:
+    return {
+        "image": name,
+        "matrix": [[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+        "fx": 30.0,
+        "fy": 30.0,
+        "cx": SIZE / 2,
+        "cy": SIZE / 2,
+        "split": split,
+    }
+
+
+def _with_first(**frame: Any) -> dict[str, Any]:
+    """The 3-view cameras with the first frame's fields replaced by ``frame``."""
+    cameras = _cameras()
+    cameras["frames"][0] = {**cameras["frames"][0], **frame}
+    return cameras
+
+
+def _cameras(n: int = 3, **top: Any) -> dict[str, Any]:
+    doc = {"convention": "opencv", "pose": "camera_to_world"}
+    doc.update(top)
+    doc["frames"] = [_frame(f"v{i}.png", x=0.1 * i) for i in range(n)]
+    return doc
+
+
+def _parts(cameras: Any, images: dict[str, bytes] | None = None, spec: Any = None) -> list:
+    text = cameras if isinstance(cameras, str) else json.dumps(cameras)
+    parts: list = [("cameras", ("cameras.json", text.encode(), "application/json"))]
+    if images is None:
+        images = {f"v{i}.png": _png(seed=i) for i in range(3)}
+    parts += [("images", (name, data, "image/png")) for name, data in images.items()]
+    if spec is not None:
+        parts.append(("spec", (None, spec if isinstance(spec, str) else json.dumps(spec))))
+    return parts
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    settings = Settings(data_dir=tmp_path / "data", workers=0, render_workers=0)
+    with TestClient(create_app(settings)) as test_client:
+        test_client.data_dir = settings.data_dir  # type: ignore[attr-defined]
+        yield test_client
+
+
+def _nothing_left(client: TestClient) -> None:
+    assert client.get("/v1/jobs").json()["jobs"] == []
+    data: Path = client.data_dir  # type: ignore[attr-defined]
+    assert list((data / "jobs").iterdir()) == []
+    assert list((data / "staging").iterdir()) == []
+
+
+def test_a_valid_upload_is_accepted_and_stored_under_our_names(client: TestClient) -> None:
+    response = client.post("/v1/jobs", files=_parts(_cameras()), data={})
+    assert response.status_code == 201, response.text
+    job = response.json()
+    assert response.headers["location"] == f"/v1/jobs/{job['id']}"
+    upload = client.data_dir / "jobs" / job["id"] / "upload"  # type: ignore[attr-defined]
+    stored = json.loads((upload / "cameras.json").read_text())
+    assert [f["image"] for f in stored["frames"]] == [f"images/00{i}.png" for i in range(3)]
+    assert all((upload / f["image"]).is_file() for f in stored["frames"])
+
+
+BAD_CASES: dict[str, tuple[Any, int, str]] = {
+    "malformed JSON": (lambda: _parts('{"frames": ['), 422, "not valid JSON"),
+    "unknown field": (lambda: _parts({**_cameras(), "convension": "opengl"}), 422, "convention"),
+    "missing convention": (
+        lambda: _parts({k: v for k, v in _cameras().items() if k != "convention"}),
+        422,
+        "convention",
+    ),
+    "3x3 matrix": (lambda: _parts(_with_first(matrix=[[1, 0, 0]] * 3)), 422, "4x4"),
+    "non-rigid rotation": (
+        lambda: _parts(
+            _with_first(matrix=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        ),
+        422,
+        "rigid",
+    ),
+    "NaN focal length": (
+        lambda: _parts(json.dumps(_cameras()).replace('"fx": 30.0', '"fx": NaN', 1)),
+        422,
+        "fx",
+    ),
+    "count mismatch": (
+        lambda: _parts(_cameras(), {"v0.png": _png(), "v1.png": _png()}),
+        422,
+        "missing: v2.png",
+    ),
+    "unlisted image": (
+        lambda: _parts(_cameras(), {**{f"v{i}.png": _png() for i in range(3)}, "x.png": _png()}),
+        422,
+        "x.png",
+    ),
+    "one training view": (lambda: _parts(_cameras(1), {"v0.png": _png()}), 422, "2"),
+    "corrupt image": (
+        lambda: _parts(_cameras(), {"v0.png": b"not an image", "v1.png": _png(), "v2.png": _png()}),
+        422,
+        "v0.png",
+    ),
+    "truncated image": (
+        lambda: _parts(_cameras(), {"v0.png": _png()[:300], "v1.png": _png(), "v2.png": _png()}),
+        422,
+        "v0.png",
+    ),
+    "100-megapixel bomb": (
+        lambda: _parts(
+            _cameras(), {"v0.png": _png_bomb(10_000, 10_000), "v1.png": _png(), "v2.png": _png()}
+        ),
+        413,
+        "megapixels",
+    ),
+    "path traversal": (
+        lambda: _parts(
+            {**_cameras(), "frames": [_frame("../../etc/passwd"), *_cameras()["frames"][1:]]},
+            {"../../etc/passwd": _png(), "v1.png": _png(), "v2.png": _png()},
+        ),
+        422,
+        "no '..'",
+    ),
+    "path traversal in the file name": (
+        lambda: _parts(_cameras(), {"../v0.png": _png(), "v1.png": _png(), "v2.png": _png()}),
+        422,
+        "plain name",
+    ),
+    "bad spec": (lambda: _parts(_cameras(), spec={"iterations": -5}), 422, "iterations"),
+    "spec typo": (lambda: _parts(_cameras(), spec={"iteration": 5}), 422, "iteration"),
+    "both lengths": (
+        lambda: _parts(_cameras(), spec={"iterations": 5, "time_budget_s": 60}),
+        422,
+        "not both",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_upload_is_refused_with_a_message_and_leaves_nothing(
+    client: TestClient, case: str
+) -> None:
+    make, status, words = BAD_CASES[case]
+    response = client.post("/v1/jobs", files=make())
+    assert response.status_code == status, response.text
+    body = response.json()
+    assert set(body) == {"code", "message"} and body["message"]
+    assert words in body["message"], body
+    _nothing_left(client)
+
+
+def test_unknown_deleted_and_unfinished_jobs(client: TestClient) -> None:
+    assert client.get("/v1/jobs/job_00000000000000000000").status_code == 404
+    assert client.get("/v1/jobs/../../etc").status_code == 404
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    camera = {"convention": "opencv", "pose": "camera_to_world",
+              "matrix": _frame("x")["matrix"], "fx": 30, "fy": 30, "cx": 16, "cy": 16,
+              "width": 32, "height": 32}  # fmt: skip
+    response = client.post(f"/v1/models/{job['id']}/render", json={"camera": camera})
+    assert response.status_code == 409 and "queued" in response.json()["message"]
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204
+    assert client.get(f"/v1/jobs/{job['id']}").status_code == 404
+    assert client.post(f"/v1/models/{job['id']}/render", json={"camera": camera}).status_code == 404
+    _nothing_left(client)
+
+
+def test_render_request_validation(client: TestClient) -> None:
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    url = f"/v1/models/{job['id']}/render"
+    no_convention = {"pose": "camera_to_world", "matrix": _frame("x")["matrix"], "fx": 30,
+                     "fy": 30, "cx": 16, "cy": 16, "width": 32, "height": 32}  # fmt: skip
+    response = client.post(url, json={"camera": no_convention})
+    assert response.status_code == 422 and "convention" in response.json()["message"]
+    response = client.post(url, json={})
+    assert response.status_code == 422 and "exactly one" in response.json()["message"]
