@@ -322,8 +322,9 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
     for i, name in enumerate(names):
         if dist[i] > 1e4 * typical:
             raise SceneError(
-                f"{source}: frame {name!r}: camera is {dist[i]:.3g} from the others, which are "
-                f"about {typical:.3g} apart: a typo in its translation or a different unit?"
+                f"{source}: frame {name!r}: camera is {dist[i]:.3g} from the median camera "
+                f"position, the others about {typical:.3g}: a typo in its translation or a "
+                "different unit?"
             )
 
 
