@@ -88,11 +88,7 @@ class KeyStore:
             ).scalar_one_or_none()
 
     def any_configured(self) -> bool:
-        """Whether at least one live key exists."""
+        """Whether any key was ever created. Revoked keys count: revoking the last key must
+        not turn the service back into an anonymous one."""
         with self.engine.begin() as conn:
-            return (
-                conn.execute(
-                    sa.select(api_keys.c.id).where(api_keys.c.revoked_at.is_(None)).limit(1)
-                ).first()
-                is not None
-            )
+            return conn.execute(sa.select(api_keys.c.id).limit(1)).first() is not None
