@@ -12,6 +12,7 @@ from sparsesplat.api.store.database import make_engine, migrate
 from sparsesplat.api.store.jobs import JobStore
 from sparsesplat.api.store.keys import KeyStore
 from sparsesplat.api.store.workers import WorkerRegistry
+from sparsesplat.server.job_dispatch import JobDispatcher, make_dispatcher
 from sparsesplat.server.observability import ServiceMetrics
 from sparsesplat.server.ratelimit import RateLimiter
 from sparsesplat.server.render_dispatch import RenderDispatcher
@@ -33,6 +34,8 @@ class ServiceState:
     """Live workers."""
     storage: Storage
     """Job files."""
+    dispatch: JobDispatcher
+    """How queued jobs reach the training workers."""
     renders: RenderDispatcher
     """Where render requests go."""
     render_limit: RateLimiter
@@ -55,6 +58,7 @@ class ServiceState:
             keys=KeyStore(engine),
             workers=registry,
             storage=Storage(settings.data_dir),
+            dispatch=make_dispatcher(settings),
             renders=RenderDispatcher(registry),
             render_limit=RateLimiter(settings.renders_per_second, 2 * settings.renders_per_second),
             metrics=ServiceMetrics(jobs, registry),
@@ -63,4 +67,5 @@ class ServiceState:
     async def close(self) -> None:
         """Release connections."""
         await self.renders.close()
+        self.dispatch.close()
         self.engine.dispose()

@@ -100,14 +100,22 @@ async def submit_job(
     staging = service.storage.new_staging_dir()
     try:
         upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        # Files first, record second: a worker that claims the job finds its upload in place.
         job_id = new_job_id()
-        job_id, created = await asyncio.to_thread(
-            service.jobs.create, job_id, owner, upload.spec, upload.n_train_views,
-            upload.n_test_views, idempotency_key,
-        )  # fmt: skip
+        service.storage.commit_upload(staging, job_id)
+        try:
+            stored_id, created = await asyncio.to_thread(
+                service.jobs.create, job_id, owner, upload.spec, upload.n_train_views,
+                upload.n_test_views, idempotency_key,
+            )  # fmt: skip
+        except BaseException:
+            service.storage.delete_job(job_id)
+            raise
         if created:
-            service.storage.commit_upload(staging, job_id)
-        else:
+            await asyncio.to_thread(service.dispatch.enqueue, job_id)
+        else:  # a concurrent retry with the same idempotency key won the race
+            service.storage.delete_job(job_id)
+            job_id = stored_id
             response.status_code = 200
     finally:
         service.storage.discard(staging)

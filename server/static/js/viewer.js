@@ -95,7 +95,7 @@ export function mount(container, { jobId }) {
   const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 1000);
   scene.add(camera);
   let dirty = true;
-  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, enableLod: false, onDirty: () => (dirty = true) });
+  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, onDirty: () => (dirty = true) });
   scene.add(spark);
   const frusta = new THREE.Group();
   scene.add(frusta);
@@ -273,7 +273,7 @@ export function mount(container, { jobId }) {
     }
     if (unmounted) return;
     loading.textContent = "Preparing the splats…";
-    mesh = new SplatMesh({ fileBytes: bytes, fileName: "model.ply" });
+    mesh = new SplatMesh({ fileBytes: bytes, fileName: "model.ply", lod: true });
     scene.add(mesh);
     await mesh.initialized;
     if (unmounted) return;
