@@ -221,9 +221,13 @@ def psnr(a: Any, b: Any) -> float:
 def composite_on(image: Any, background: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> Any:
     """An RGBA array or PIL image composited on ``background`` (RGB array, uint8)."""
     np_ = require("numpy", "compositing an image")
-    a = np_.asarray(image.convert("RGBA") if hasattr(image, "convert") else image)
-    if a.ndim != 3 or a.shape[2] != 4:
-        return a[..., :3] if a.ndim == 3 else a
+    if hasattr(image, "convert"):
+        image = image.convert("RGBA" if "A" in image.getbands() else "RGB")
+    a = np_.asarray(image)
+    if a.ndim == 2:
+        return np_.repeat(a[..., None], 3, axis=2)
+    if a.shape[2] != 4:
+        return a[..., :3]
     f = a.astype(np_.float64) / 255.0
     rgb = f[..., :3] * f[..., 3:] + np_.asarray(background) * (1 - f[..., 3:])
     return (rgb * 255.0 + 0.5).astype(np_.uint8)

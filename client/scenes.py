@@ -115,6 +115,18 @@ class Upload:
             if f.get("split", "train") == "train"
         ]
 
+    def image_array(
+        self, image: str, background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    ) -> Any:
+        """The uploaded image ``image`` as an (H, W, 3) uint8 array, an alpha channel
+        composited on ``background`` (white, as the service does for images with alpha);
+        ``images`` extra."""
+        return media.composite_on(media.decode_image(self.images[image]), background)
+
+    def test_images(self, background: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> list[Any]:
+        """The held-out images as arrays, in the order of :meth:`test_cameras`."""
+        return [self.image_array(n, background) for n in self.frame_names("test")]
+
     def camera(self, image: str) -> PinholeCamera:
         """The render camera of the frame whose image is ``image``."""
         for frame in self.cameras["frames"]:

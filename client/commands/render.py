@@ -55,7 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _cameras(args: argparse.Namespace, model: Any) -> list[PinholeCamera | dict[str, Any]]:
     if args.camera:
-        text = Path(args.camera).read_text() if Path(args.camera).is_file() else args.camera
+        text = args.camera.strip()
+        if not text.startswith(("{", "[")):
+            try:
+                text = Path(args.camera).read_text()
+            except OSError as exc:
+                raise InvalidInput(f"--camera {args.camera}: cannot read ({exc})") from exc
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:

@@ -45,7 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _spec(args: argparse.Namespace) -> dict[str, Any]:
     spec: dict[str, Any] = {}
     if args.spec:
-        text = Path(args.spec).read_text() if Path(args.spec).is_file() else args.spec
+        text = args.spec.strip()
+        if not text.startswith("{"):
+            try:
+                text = Path(args.spec).read_text()
+            except OSError as exc:
+                raise InvalidInput(f"--spec {args.spec}: cannot read ({exc})") from exc
         try:
             spec = json.loads(text)
         except json.JSONDecodeError as exc:
@@ -72,6 +77,9 @@ def _test_views(value: str) -> int | str:
 
 def _upload(args: argparse.Namespace) -> Upload:
     paths = [Path(p) for p in args.paths]
+    missing = [str(p) for p in paths if not p.exists()]
+    if missing:
+        raise InvalidInput(f"{', '.join(missing)}: not found")
     if len(paths) == 1 and paths[0].is_dir():
         test_views = _test_views(args.test_views)
         return read_scene(
