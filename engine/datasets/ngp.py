@@ -8,7 +8,13 @@ import torch
 
 from sparsesplat.engine.camera_convert import distortion_from_transforms
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
-from sparsesplat.engine.datasets.common import covisible_box, load_view, look_at_bounds
+from sparsesplat.engine.datasets.common import (
+    covisible_box,
+    default_background,
+    load_view,
+    look_at_bounds,
+    recomposite,
+)
 from sparsesplat.engine.datasets.splits import llff_split
 from sparsesplat.engine.errors import CameraError, SceneError
 from sparsesplat.engine.scene import Scene
@@ -18,6 +24,7 @@ BLACK = (0.0, 0.0, 0.0)
 
 def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     """Load an instant-ngp scene with the LLFF-style split over frames sorted by file path.
+    Frames with alpha are composited on white (the scene background), others stay as shot.
 
     Lens distortion (OpenCV k1, k2, p1, p2) is removed: images are resampled to the ideal
     pinhole camera with the same intrinsics (black where the lens saw nothing)."""
@@ -40,12 +47,20 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     near, far = look_at_bounds(cameras)
     train_cams = [cameras[i] for i in train_idx]
     box = covisible_box(train_cams, [near] * len(train_cams), [far] * len(train_cams))
+    train = [view(i) for i in train_idx]
+    test = [view(i) for i in test_idx]
+    # RGBA frames (nerfstudio/instant-ngp cut-outs) go on white, like every alpha capture.
+    background = default_background(train + test, BLACK)
+    if background != BLACK:
+        old, new = torch.tensor(BLACK), torch.tensor(background)
+        train = [recomposite(v, old, new) for v in train]
+        test = [recomposite(v, old, new) for v in test]
     return Scene(
         name=root.name,
         format="ngp",
-        train=[view(i) for i in train_idx],
-        test=[view(i) for i in test_idx],
-        background=torch.tensor(BLACK),
+        train=train,
+        test=test,
+        background=torch.tensor(background),
         near=near,
         far=far,
         init_box=box,

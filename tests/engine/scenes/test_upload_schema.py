@@ -190,3 +190,21 @@ def test_trainer_targets_and_renders_share_the_configured_background(tmp_path: P
     assert "r_4" in warning and trainer.emptiness_warning(None) is not None
     trainer.view_coverage = {"r_4": 0.3}
     assert trainer.emptiness_warning(psnr_db=40.0) is None
+
+
+def test_instant_ngp_frames_with_alpha_go_on_white(tmp_path: Path) -> None:
+    root = write_object_scene(tmp_path / "ngp", "opengl", "camera_to_world", count=10, size=24)
+    meta = json.loads((root / "cameras.json").read_text())
+    frames = [
+        {"file_path": f["image"], "transform_matrix": f["matrix"], "fl_x": f["fx"],
+         "fl_y": f["fy"], "cx": f["cx"], "cy": f["cy"], "w": 24, "h": 24}
+        for f in meta["frames"]
+    ]  # fmt: skip
+    (root / "cameras.json").unlink()
+    (root / "transforms.json").write_text(json.dumps({"frames": frames}))
+    scene = load_scene(root, views=3)
+    assert scene.format == "ngp" and torch.equal(scene.background, torch.ones(3))
+    view = scene.train[0]
+    assert view.alpha is not None
+    assert torch.equal(view.image[view.alpha == 0], torch.ones_like(view.image[view.alpha == 0]))
+    assert choose_preset(scene)[0] == "object"
