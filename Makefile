@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint pytest venv clean bench-raster bench-quality bench-iteration
+.PHONY: run test lint typecheck dockerlint pytest venv clean bench-raster bench-quality bench-iteration bench-service
 
 venv: $(VENV)/.installed
 
@@ -47,6 +47,9 @@ bench-quality: venv
 
 bench-iteration: venv
 	$(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
+
+bench-service: venv
+	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) .cache .mypy_cache .ruff_cache .pytest_cache build dist *.egg-info
