@@ -132,21 +132,34 @@ def test_upload_refused_with_the_servers_message(tmp_path: Path) -> None:
     _run(tmp_path, body)
 
 
-def test_server_stopped_is_a_connection_failure(tmp_path: Path) -> None:
-    server = start_server(tmp_path, ready=False, SPARSESPLAT_WORKERS="0",
-                          SPARSESPLAT_RENDER_WORKERS="0")  # fmt: skip
+def test_event_stream_errors_and_server_stopped(tmp_path: Path) -> None:
+    """A real server with a key and no workers: the WebSocket refusals map to the same
+    classes as HTTP; once the server is stopped every call is a ConnectionFailed."""
+    no_workers = {"SPARSESPLAT_WORKERS": "0", "SPARSESPLAT_RENDER_WORKERS": "0"}
+    server = start_server(tmp_path, False, SPARSESPLAT_API_KEYS=f'["{KEY}"]', **no_workers)
     try:
-        with Client(server.url, retry=RetryPolicy(max_retries=1, backoff_s=0.05)) as client:
+        fast = RetryPolicy(max_retries=1, backoff_s=0.05, reconnect_s=0.2)
+        with Client(server.url, KEY, retry=fast) as client:
             assert client.health().status == "ok"
             ready = client.ready()  # 503 with its body: no workers
             assert not ready.ready and ready.problems
+            job = client.submit(_tiny_upload(), {"iterations": 5})
+            with (
+                Client(server.url, "wrong-key", retry=fast) as stranger,
+                pytest.raises(AuthenticationError),
+            ):
+                list(stranger.events(job.id))
+            with pytest.raises(NotFound):
+                list(client.events("job_does_not_exist"))
+            with pytest.raises(Timeout):  # queued forever: no worker
+                list(job.events(timeout=1.0))
             server.stop()
             with pytest.raises(ConnectionFailed) as lost:
-                client.get_job("job_x")
+                client.get_job(job.id)
             assert server.url.split("//")[1] in str(lost.value)
             assert isinstance(lost.value, ConnectionError)
             with pytest.raises(ConnectionFailed):
-                list(Client(server.url, retry=RetryPolicy(reconnect_s=0.2)).events("job_x"))
+                list(client.events(job.id))
     finally:
         server.stop()
 
