@@ -1,10 +1,18 @@
-"""Suite-wide fixtures: thread count, the shared real scenes, the models directory."""
+"""Suite-wide fixtures: random seeds, thread count, the shared real scenes, the models directory.
+
+Random seeds: every test gets a fresh seed (the ``seed`` fixture; Python's ``random``, numpy's and
+torch's global generators are seeded from it too), so the suite explores new inputs on each run.
+A failing test prints ``SPARSESPLAT_TEST_SEED=<seed>`` in its report; setting that variable
+replays the run exactly (it fixes the seed of every test in the run).
+"""
 
 from __future__ import annotations
 
 import os
+import random
+import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 
 import pytest
@@ -14,6 +22,9 @@ SHARED = REPO.parent / "shared"
 SHARED_DATA = SHARED / "data"
 SHARED_MODELS = SHARED / "models"
 TEST_MODELS_DIR = REPO / ".cache" / "models"
+SEED_ENV = "SPARSESPLAT_TEST_SEED"
+"""Environment variable that fixes every test's random seed (replays a failure)."""
+_SEED_KEY = pytest.StashKey[int]()
 
 
 def _fill_models_dir() -> None:
@@ -79,3 +90,54 @@ def _two_threads() -> Iterator[None]:
     torch.set_num_threads(2)
     yield
     torch.set_num_threads(previous)
+
+
+def draw_seed() -> int:
+    """The seed for one test: ``$SPARSESPLAT_TEST_SEED`` when set, else a fresh random one."""
+    fixed = os.environ.get(SEED_ENV, "").strip()
+    if fixed:
+        try:
+            return int(fixed, 0)
+        except ValueError:
+            raise pytest.UsageError(f"{SEED_ENV}={fixed!r}: expected an integer") from None
+    return secrets.randbits(31)
+
+
+@pytest.fixture
+def seed(request: pytest.FixtureRequest, _seeded_global_generators: None) -> int:
+    """This test's random seed (see the module docstring); a failure report prints it."""
+    return request.node.stash[_SEED_KEY]
+
+
+@pytest.fixture(autouse=True)
+def _seeded_global_generators(request: pytest.FixtureRequest) -> None:
+    """Draw the test's seed and seed the global generators with it, so code that draws from
+    them (torch.rand without a generator, random.random) replays too."""
+    value = draw_seed()
+    request.node.stash[_SEED_KEY] = value
+    random.seed(value)
+    try:
+        import numpy
+
+        numpy.random.seed(value)
+    except ImportError:
+        pass
+    try:
+        import torch
+
+        torch.manual_seed(value)
+    except ImportError:
+        pass
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    """A failed test's report says its seed and how to replay it."""
+    report = yield
+    value = item.stash.get(_SEED_KEY, None)
+    if report.failed and value is not None:
+        replay = f"{SEED_ENV}={value} pytest '{item.nodeid}'"
+        report.sections.append(("random seed", f"{SEED_ENV}={value} replays this run: {replay}"))
+    return report

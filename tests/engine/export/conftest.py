@@ -1,10 +1,8 @@
-"""Helpers shared by the export tests: random Gaussians with a logged seed."""
+"""Helpers shared by the export tests: random Gaussians from a seed (the suite's ``seed``
+fixture, tests/conftest.py, gives each test a fresh one and prints it on failure)."""
 
 from __future__ import annotations
 
-import random
-
-import pytest
 import torch
 from torch import Tensor
 
@@ -19,9 +17,3 @@ def random_gaussians(n: int, degree: int, seed: int) -> dict[str, Tensor]:
         "opacity_logits": torch.randn(n, generator=g) * 2.0,
         "sh": torch.randn(n, (degree + 1) ** 2, 3, generator=g) * 0.3,
     }
-
-
-@pytest.fixture
-def seed() -> int:
-    """A fresh random seed per test; tests put it in their assertion messages."""
-    return random.randrange(2**31)

@@ -1,16 +1,18 @@
 """The native (C++) EWA projection against the torch ``project()`` it replaces on the CPU path.
 
-Values are compared with ``project()`` run in float32 (the same float32 operations: agreement to
-float32 rounding); gradients with autograd through ``project()`` run in float64, so the float32
-rounding of both implementations is measured against the exact gradient of the same graph.
+Values and gradients follow the float32 rule of ``tests/engine/numerics.py``: the native kernel
+and torch's ``project()`` in float32 are both measured against ``project()`` run in float64 on
+the same float32 inputs (autograd of the same graph for the gradients), and the kernel's error
+must stay within 4x of torch's pooled error plus a floor of a few dozen roundoffs of each row.
+The two float32 paths are never compared with each other: they round differently (a GEMM, an
+exp), and which of them is closer to float64 depends on the CPU.
 """
 
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pytest
 import torch
@@ -23,22 +25,20 @@ from sparsesplat.engine.raster import build, rasterize
 from sparsesplat.engine.raster.cpu_backend import _Blend
 from sparsesplat.engine.raster.native_projection import project_native
 from sparsesplat.engine.raster.projection import Projected, project
+from tests.engine.numerics import Float32Comparison, assert_float32_close, compare_float32
 
-from .helpers import camera, random_gaussians
+from .helpers import (
+    PARAM_NAMES,
+    Gaussians,
+    camera,
+    culling_windows,
+    decision_windows,
+    jittered,
+    random_gaussians,
+)
 
 INPUTS = ("means", "log_scales", "quats", "opacity_logits")
 OUTPUTS = ("means2d", "conics", "depths", "opacities")
-GRAD_RTOL = 1e-4
-"""Per-element relative tolerance of the gradients against float64 autograd ..."""
-GRAD_ATOL = 1e-5
-"""... plus this fraction of the gradient tensor's largest entry: an entry that is a sum of
-terms cancelling to ~0 keeps only float32's absolute precision of the terms (seen: 2e-6)."""
-GRAD_L2 = 1e-5
-"""Relative L2 error bound of each gradient tensor (seen: 5e-8 to 2e-6)."""
-
-
-def _seed() -> int:
-    return random.randrange(2**31)
 
 
 @dataclass
@@ -50,6 +50,11 @@ class Case:
     near: float = 0.01
     far: float = 1e10
     eps2d: float = 0.3
+    draws: int = 1
+    """Copies of the case (inputs moved by one float32 step) pooled in the comparison: a handful
+    of Gaussians is too few rounding draws for torch's error to be a stable scale."""
+    perturb: tuple[str, int, float] | None = field(default=None)
+    """(output or input name, flat index, relative): spoil one native entry (tests of the check)."""
 
 
 def _case(n: int, seed: int, spread: float = 0.8, cam: Camera | None = None) -> Case:
@@ -70,11 +75,12 @@ def _run(
     dtype: torch.dtype,
     up: list[Tensor],
     wanted: tuple[bool, ...],
+    params: list[Tensor] | None = None,
 ) -> tuple[Projected, list[Tensor | None]]:
     """Project with ``fn`` in ``dtype``, back-propagate ``up``; returns outputs and input grads."""
     leaves = [
         p.detach().to(dtype).clone().requires_grad_(w)
-        for p, w in zip(case.params, wanted, strict=True)
+        for p, w in zip(case.params if params is None else params, wanted, strict=True)
     ]
     c = case.cam
     cam = Camera(c.world_to_camera.to(dtype), c.fx, c.fy, c.cx, c.cy, c.width, c.height)
@@ -86,80 +92,82 @@ def _run(
     return out, [leaf.grad for leaf in leaves]
 
 
-def _l2(a: Tensor, ref: Tensor) -> float:
-    """Relative L2 error of ``a`` against ``ref``."""
-    return float((a.double() - ref).norm() / ref.norm().clamp_min(1e-300))
-
-
-def _check(
-    case: Case, seed: int, what: str, well_conditioned: bool = True
-) -> tuple[Projected, list[Tensor | None]]:
-    """Native values equal project()'s in float32 to rounding; native gradients equal float64
-    autograd of project() to GRAD_RTOL / GRAD_ATOL (and GRAD_L2 when ``well_conditioned``;
-    otherwise each gradient must be no further from float64 than 3x torch float32's own error).
-    Culling, radii and exact zeros (masked rows) agree."""
+def _compare(case: Case, seed: int, what: str) -> tuple[list[Float32Comparison], Projected,
+                                                          list[Tensor | None]]:  # fmt: skip
+    """The float32 rule for the four outputs and four input gradients, pooled over
+    ``case.draws`` jittered copies; returns the comparisons and the first copy's native run."""
     n = case.params[0].shape[0]
     up = _upstream(n, seed)
     everything = (True, True, True, True)
-    got, grads = _run(project_native, case, torch.float32, up, everything)
-    t32, grads32 = _run(project, case, torch.float32, up, everything)
-    ref, grads64 = _run(project, case, torch.float64, up, everything)
+    pooled: dict[str, list[tuple[Tensor, Tensor, Tensor]]] = {}
+    first: tuple[Projected, list[Tensor | None]] | None = None
+    for draw in range(case.draws):
+        params = case.params
+        if draw:
+            moved = jittered(Gaussians(*params, torch.zeros(n, 0)), seed + draw)
+            params = moved.tensors()[:4]
+        got, grads = _run(project_native, case, torch.float32, up, everything, params)
+        t32, grads32 = _run(project, case, torch.float32, up, everything, params)
+        ref, grads64 = _run(project, case, torch.float64, up, everything, params)
+        if first is None:
+            first = (got, grads)
+        for name in OUTPUTS:
+            trio = tuple(getattr(o, name).detach() for o in (got, ref, t32))
+            pooled.setdefault(name, []).append(trio)  # type: ignore[arg-type]
+        for name, g, g64, g32 in zip(INPUTS, grads, grads64, grads32, strict=True):
+            assert g is not None and g64 is not None and g32 is not None, what
+            assert g.dtype == torch.float32 and g.shape == g64.shape, what
+            pooled.setdefault(f"grad of {name}", []).append((g, g64, g32))
+    results = []
+    for name, parts in pooled.items():
+        a, b, c = (torch.cat([p[k] for p in parts]) for k in range(3))
+        if case.perturb is not None and name in (case.perturb[0], f"grad of {case.perturb[0]}"):
+            a = a.clone()
+            a.view(-1)[case.perturb[1]] *= 1 + case.perturb[2]
+        # Default terms: each Gaussian's row (largest |entry|), or the entry for vectors.
+        results.append(compare_float32(a, b, c, None, f"{what} (seed {seed}): {name}"))
+    assert first is not None
+    return results, first[0], first[1]
+
+
+def _check(case: Case, seed: int, what: str) -> tuple[Projected, list[Tensor | None]]:
+    """Native outputs and gradients follow the float32 rule against float64 ``project()``.
+    Culling agrees with float64 except within float32's error of a threshold, radii to a pixel
+    (a ceil); culled rows get exact zeros, as the torch.where masks give."""
+    results, got, grads = _compare(case, seed, what)
+    for result in results:
+        assert result.passed, result.message()
+    n = case.params[0].shape[0]
     msg = f"{what} (seed {seed})"
-
-    # Values: float32 rounding of the same operations (the GEMM's and exp's last bits differ).
-    for name in ("means2d", "depths", "opacities"):
-        a, b = getattr(got, name).detach().double(), getattr(t32, name).detach().double()
-        assert a.dtype == b.dtype and a.shape == b.shape, msg
-        assert torch.isfinite(a).all(), f"{msg}: non-finite {name}"
-        err = float(((a - b).abs() - 1e-6 * b.abs()).max()) if a.numel() else 0.0
-        assert err <= 0.0, f"{msg}: {name} differs from project() beyond rounding ({err:.3g})"
-    a, b = got.conics.detach().double(), t32.conics.detach().double()
-    assert torch.isfinite(a).all(), f"{msg}: non-finite conics"
-    row = b.abs().amax(dim=-1, keepdim=True)
-    err = float(((a - b).abs() / row.clamp_min(1e-300)).max()) if a.numel() else 0.0
-    assert err < 1e-5, f"{msg}: conics differ from project() by {err:.3g} of the row"
-    assert torch.equal((a == 0).all(-1), (b == 0).all(-1)), f"{msg}: conic culling differs"
-    assert torch.equal(got.depths == 0, t32.depths == 0), f"{msg}: depth culling differs"
+    ref, _ = _run(project, case, torch.float64, _upstream(n, seed), (False,) * 4)
+    for name in OUTPUTS:
+        assert torch.isfinite(getattr(got, name)).all(), f"{msg}: non-finite {name}"
+    gs = Gaussians(*case.params, torch.zeros(n, 0))
+    sure = ~culling_windows(gs, case.cam, case.near, case.far, case.eps2d)
+    conic_zero = (got.conics == 0).all(-1)
+    assert torch.equal(conic_zero[sure], (ref.conics == 0).all(-1)[sure]), f"{msg}: conic culling"
+    assert torch.equal((got.depths == 0)[sure], (ref.depths == 0)[sure]), f"{msg}: depth culling"
     assert got.radii.dtype == torch.int32 and got.radii.shape == (n, 2), msg
-    assert torch.equal(got.radii > 0, t32.radii > 0), f"{msg}: culling differs from project()"
-    assert torch.equal(got.radii > 0, ref.radii > 0), f"{msg}: culling differs from float64"
+    assert torch.equal((got.radii > 0)[sure], (ref.radii > 0)[sure]), f"{msg}: culling differs"
     # ceil(3.33 sqrt(a)) of a huge footprint may move by a pixel with the last bit of a.
-    slack = (t32.radii.double() * 1e-5).clamp_min(1.0)
-    assert ((got.radii - t32.radii).abs() <= slack).all(), f"{msg}: radii differ"
-
-    for name, g, g32, g64 in zip(INPUTS, grads, grads32, grads64, strict=True):
-        assert g is not None and g32 is not None and g64 is not None, msg
-        assert g.dtype == torch.float32 and g.shape == g64.shape, msg
-        assert torch.isfinite(g).all(), f"{msg}: non-finite grad of {name}"
+    slack = (ref.radii.double() * 1e-5).clamp_min(1.0)
+    assert (((got.radii - ref.radii).abs() <= slack) | ~sure.unsqueeze(-1)).all(), f"{msg}: radii"
+    for name, g in zip(INPUTS, grads, strict=True):
+        assert g is not None and torch.isfinite(g).all(), f"{msg}: non-finite grad of {name}"
         if name in ("log_scales", "quats"):
             # Only the conics depend on them, and torch.where masks culled rows: exact zeros.
-            culled = (t32.conics == 0).all(-1)
-            assert (g[culled] == 0).all(), f"{msg}: grad of {name} not zero on culled rows"
-        if g.numel() == 0:
-            continue
-        e_native, e_torch32 = _l2(g, g64), _l2(g32, g64)
-        if well_conditioned:
-            bound = GRAD_ATOL * float(g64.abs().max())
-            excess = float(((g.double() - g64).abs() - GRAD_RTOL * g64.abs() - bound).max())
-            assert excess <= 0, f"{msg}: grad of {name} beyond rtol {GRAD_RTOL} (+{excess:.3g})"
-            assert e_native < GRAD_L2, f"{msg}: grad of {name} rel L2 err {e_native:.3g}"
-        else:
-            assert e_native <= 3 * e_torch32 + GRAD_L2, (
-                f"{msg}: grad of {name} rel L2 err {e_native:.3g} vs float32 torch {e_torch32:.3g}"
-            )
+            assert (g[conic_zero] == 0).all(), f"{msg}: grad of {name} not zero on culled rows"
     return got, grads
 
 
-def test_random_gaussians_match_project() -> None:
+def test_random_gaussians_match_project(seed: int) -> None:
     """Random Gaussians in front of the default camera, some outside the FoV clamp."""
-    seed = _seed()
     _check(_case(300, seed), seed, "random")
     _check(_case(300, seed, spread=3.0), seed, "wide spread (FoV clamp active)")
 
 
-def test_rotated_translated_camera() -> None:
+def test_rotated_translated_camera(seed: int) -> None:
     """A general world-to-camera pose: the rotation enters every gradient."""
-    seed = _seed()
     g = torch.Generator().manual_seed(seed)
     q = torch.randn(4, generator=g, dtype=torch.float64)
     w, x, y, z = (q / q.norm()).tolist()
@@ -179,17 +187,15 @@ def test_rotated_translated_camera() -> None:
 
 
 @pytest.mark.parametrize("scale", [1e-8, 1e4])
-def test_extreme_scales(scale: float) -> None:
+def test_extreme_scales(scale: float, seed: int) -> None:
     """Points (eps2d keeps them a pixel wide) and Gaussians far larger than the image."""
-    seed = _seed()
     case = _case(100, seed)
     case.params[1][:30] = math.log(scale)
     _check(case, seed, f"scale {scale}")
 
 
-def test_needles() -> None:
+def test_needles(seed: int) -> None:
     """Near-singular 2D covariances: one long axis, two of 1e-7."""
-    seed = _seed()
     case = _case(100, seed)
     case.params[1][:, 1:] = math.log(1e-7)
     case.params[1][:, 0] = math.log(0.3)
@@ -197,19 +203,19 @@ def test_needles() -> None:
     # With eps2d 1e-4 the conics reach ~1e4 and float32 itself (torch's project() included)
     # keeps only ~4 digits of the log-scale gradient: held to torch float32's own error.
     case.eps2d = 1e-4
-    _check(case, seed, "needles, eps2d 1e-4", well_conditioned=False)
+    _check(case, seed, "needles, eps2d 1e-4")
 
 
-def test_behind_camera_near_plane_and_beyond_far() -> None:
+def test_behind_camera_near_plane_and_beyond_far(seed: int) -> None:
     """Culled by depth: zero conics/depths, zero scale/rotation grads, means2d still finite."""
-    seed = _seed()
     case = _case(80, seed)
     means = case.params[0]
-    means[:20, 2] = -torch.rand(20) * 5 - 0.1  # behind
+    g = torch.Generator().manual_seed(seed + 2)
+    means[:20, 2] = -torch.rand(20, generator=g) * 5 - 0.1  # behind
     means[20, 2] = 0.01  # exactly on the near plane: culled (z > near is strict)
     means[21] = torch.tensor([0.01, -0.01, 0.0105])  # just past it
     means[22, 2] = 0.0  # in the camera plane
-    means[23:35, 2] = 10 + torch.rand(12) * 5  # beyond far
+    means[23:35, 2] = 10 + torch.rand(12, generator=g) * 5  # beyond far
     means[35, 2] = 10.0  # exactly at far
     case.far = 10.0
     got, grads = _check(case, seed, "behind / near / far")
@@ -225,9 +231,8 @@ def test_behind_camera_near_plane_and_beyond_far() -> None:
     assert float(grads[0][culled, :2].abs().sum()) > 0, f"seed {seed}"
 
 
-def test_unnormalized_and_tiny_quaternions() -> None:
+def test_unnormalized_and_tiny_quaternions(seed: int) -> None:
     """Quaternions of norm 1e3, 1e-6, below the 1e-12 clamp, and exactly zero."""
-    seed = _seed()
     case = _case(120, seed)
     q = case.params[2]
     q[:30] *= 1e3
@@ -238,9 +243,8 @@ def test_unnormalized_and_tiny_quaternions() -> None:
 
 
 @pytest.mark.parametrize("logit", [30.0, -30.0])
-def test_extreme_opacity_logits(logit: float) -> None:
+def test_extreme_opacity_logits(logit: float, seed: int) -> None:
     """sigmoid(30) rounds to 1 in float32 (zero grad there, as in torch); sigmoid(-30) culls."""
-    seed = _seed()
     case = _case(60, seed)
     case.params[3][:20] = logit
     got, _ = _check(case, seed, f"logit {logit}")
@@ -248,9 +252,8 @@ def test_extreme_opacity_logits(logit: float) -> None:
         assert (got.radii[:20] == 0).all(), f"seed {seed}"
 
 
-def test_far_from_origin_camera_close() -> None:
+def test_far_from_origin_camera_close(seed: int) -> None:
     """Gaussians and camera 1e4 units from the origin: m - c must be formed in float64."""
-    seed = _seed()
     offset = torch.tensor([1e4, -1e4, 1e4])
     pose = torch.eye(4)
     pose[:3, 3] = -offset
@@ -260,27 +263,26 @@ def test_far_from_origin_camera_close() -> None:
     assert int((got.radii > 0).sum()) > 50, f"seed {seed}: nothing projected"
 
 
-def test_anisotropic_intrinsics_off_centre() -> None:
+def test_anisotropic_intrinsics_off_centre(seed: int) -> None:
     """fx != fy and a principal point far from the image centre (asymmetric FoV clamp)."""
-    seed = _seed()
     cam = camera(36, 28, fx=30.0, fy=55.0, cx=4.0, cy=25.0)
     _check(_case(200, seed, spread=1.5, cam=cam), seed, "fx != fy, off-centre")
 
 
 @pytest.mark.parametrize("n", [0, 1, 7, 9])
-def test_small_counts(n: int) -> None:
+def test_small_counts(n: int, seed: int) -> None:
     """N = 0 and 1, and counts around the 8-lane vector width (partial vectors)."""
-    seed = _seed()
     case = _case(n, seed)
     if n:
         case.params[0][0] = torch.tensor([0.05, -0.02, 2.0])
+    # A few Gaussians are a few rounding draws: pool 16 jittered copies for a stable scale.
+    case.draws = 16
     got, _ = _check(case, seed, f"N={n}")
     assert got.means2d.shape == (n, 2) and got.conics.shape == (n, 3), f"seed {seed}"
 
 
-def test_non_contiguous_inputs() -> None:
+def test_non_contiguous_inputs(seed: int) -> None:
     """Strided views are accepted (copied to contiguous) and give the same result."""
-    seed = _seed()
     case = _case(50, seed)
     ref = project_native(*case.params, case.cam, 0.01, 1e10, 0.3)
     strided = [torch.stack([p, p], dim=-1)[..., 0] for p in case.params]
@@ -290,11 +292,11 @@ def test_non_contiguous_inputs() -> None:
         assert torch.equal(getattr(got, name), getattr(ref, name)), f"{name} (seed {seed})"
 
 
-def test_partial_needs_grad_match_full_backward() -> None:
+def test_partial_needs_grad_match_full_backward(seed: int) -> None:
     """The soft-depth pass (only opacity logits) and the hard-depth pass (only means) get the
     same gradients as the full backward, and outputs that depend on no input needing grad do not
-    require grad (so the blend skips their gradients)."""
-    seed = _seed()
+    require grad (so the blend skips their gradients). Bit for bit: one kernel, one CPU, the
+    same operations on each entry; the flags only skip whole outputs."""
     case = _case(200, seed)
     up = _upstream(200, seed)
     _, full = _run(project_native, case, torch.float32, up, (True, True, True, True))
@@ -315,17 +317,40 @@ def test_partial_needs_grad_match_full_backward() -> None:
     assert not out.means2d.requires_grad
 
 
-def test_rasterize_cpu_matches_torch_projection_pipeline() -> None:
-    """rasterize(backend='cpu') renders and differentiates like the blend fed by project(),
-    and means2d keeps its retained gradient (densification reads it)."""
-    seed = _seed()
+@pytest.mark.parametrize(
+    ("target", "relative"),
+    [("means2d", 1e-3), ("conics", -1e-3), ("quats", 1e-3), ("log_scales", -2.0)],
+)
+def test_the_check_catches_one_wrong_entry(target: str, relative: float, seed: int) -> None:
+    """The comparison is not vacuous: one output or gradient entry of the native kernel off by
+    1e-3 of itself (or its sign flipped: -2 relative) fails it, where the kernel as is passes."""
+    case = _case(300, seed)
+    clean, got, grads = _compare(case, seed, "clean")
+    assert all(r.passed for r in clean), [r.message() for r in clean]
+    values = getattr(got, target) if target in OUTPUTS else grads[INPUTS.index(target)]
+    assert values is not None
+    case.perturb = (target, int(values.detach().abs().flatten().argmax()), relative)
+    spoiled, _, _ = _compare(case, seed, "spoiled")
+    failed = [r.what for r in spoiled if not r.passed]
+    name = target if target in OUTPUTS else f"grad of {target}"
+    assert failed == [f"spoiled (seed {seed}): {name}"], failed
+
+
+def test_rasterize_cpu_matches_torch_projection_pipeline(seed: int) -> None:
+    """rasterize(backend='cpu'), the native projection feeding the native blend, against the
+    float64 dense reference under the float32 rule, with the same blend fed by torch's
+    project() as the float32 scale: the native projection costs no more accuracy than torch's.
+    means2d keeps its retained gradient (densification reads it), also within the rule."""
     gs = random_gaussians(120, seed)
     cam = camera(41, 33)
+    windows = decision_windows(gs, cam)
+    keep = (~windows.pixels).double()
     gen = torch.Generator().manual_seed(seed + 3)
     weights = [torch.rand(3, 33, 41, generator=gen), torch.rand(1, 33, 41, generator=gen)]
 
     def loss_of(image: Tensor, depth: Tensor) -> Tensor:
-        return (image * weights[0]).sum() + (depth * weights[1]).sum()
+        w = [(x * keep).to(image.dtype) for x in weights]
+        return (image * w[0]).sum() + (depth * w[1]).sum()
 
     params = [t.clone().requires_grad_(True) for t in gs.tensors()]
     out = rasterize(*params, cam, backend="cpu")
@@ -340,16 +365,27 @@ def test_rasterize_cpu_matches_torch_projection_pipeline() -> None:
     loss_of(image, depth).backward()
     assert proj.means2d.grad is not None
 
-    assert torch.allclose(out.image, image, rtol=1e-5, atol=1e-6), f"seed {seed}"
-    assert torch.allclose(out.depth, depth, rtol=1e-5, atol=1e-6), f"seed {seed}"
-    assert torch.equal(out.radii, proj.radii.amax(-1)), f"seed {seed}"
-    scale = float(proj.means2d.grad.abs().max())
-    assert torch.allclose(out.means2d.grad, proj.means2d.grad, rtol=1e-4, atol=1e-6 * scale)
-    for name, a, b in zip(("means", "log_scales", "quats", "opacity_logits", "features"),
-                          params, leaves, strict=True):  # fmt: skip
-        assert a.grad is not None and b.grad is not None, name
-        tol = 1e-6 * float(b.grad.abs().max())
-        assert torch.allclose(a.grad, b.grad, rtol=1e-4, atol=tol), f"{name} (seed {seed})"
+    exact = [t.double().requires_grad_(True) for t in gs.tensors()]
+    ref = rasterize(*exact, cam, backend="reference")
+    loss_of(ref.image, ref.depth).backward()
+    assert ref.means2d.grad is not None
+
+    msg = f"seed {seed}"
+    mask = keep.bool()
+    for name, a, b, c in (("image", out.image, ref.image, image),
+                          ("depth", out.depth, ref.depth, depth)):  # fmt: skip
+        m = mask.expand_as(b)
+        scale = float(b.detach().abs().max())
+        assert_float32_close(a.detach()[m], b.detach()[m], c.detach()[m], scale, f"{name} {msg}")
+    assert_float32_close(out.means2d.grad, ref.means2d.grad, proj.means2d.grad,
+                         what=f"means2d.grad {msg}")  # fmt: skip
+    for name, a, b, c in zip(PARAM_NAMES, params, exact, leaves, strict=True):
+        assert a.grad is not None and b.grad is not None and c.grad is not None, name
+        assert_float32_close(a.grad, b.grad, c.grad, what=f"grad of {name} {msg}")
+    sure = ~windows.gaussians
+    assert torch.equal((out.radii > 0)[sure], (ref.radii > 0)[sure]), f"{msg}: culling differs"
+    slack = (ref.radii.double() * 1e-5).clamp_min(1.0)
+    assert (((out.radii - ref.radii).abs() <= slack) | ~sure).all(), f"{msg}: radii differ"
 
 
 def test_build_failure_raises_raster_error(monkeypatch: pytest.MonkeyPatch) -> None:
