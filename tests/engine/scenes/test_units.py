@@ -41,3 +41,11 @@ def test_millimetre_copy_trains_like_the_metre_copy(tmp_path: Path) -> None:
     assert n_m == n_mm, f"initial Gaussians differ by unit: {runs}"
     assert 1000 <= n_m < 5000, runs
     assert abs(psnr_m - psnr_mm) < 0.5, f"PSNR depends on the unit: {runs}"
+
+
+def test_checkpoints_from_before_the_unit_free_count_still_load() -> None:
+    from sparsesplat.engine.train import TrainConfig
+
+    old = {**_config().to_dict(), "init_points_per_unit": 50.0}
+    old.pop("init_points_density")
+    assert TrainConfig.from_dict(old).init_points_density == TrainConfig().init_points_density
