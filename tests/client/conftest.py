@@ -4,6 +4,7 @@ trained on the shared mic scene that every test reuses."""
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -42,13 +43,18 @@ class Server:
 
     def stop(self) -> None:
         """Stop it (workers included)."""
+        # A following SIGINT makes uvicorn stop waiting for open connections: an abandoned
+        # event stream keeps its handler alive (it polls the database and never reads).
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            if self.process.poll() is None:
+                self.process.send_signal(sig)
+                try:
+                    self.process.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    continue
         if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+            self.process.kill()
+            self.process.wait()
 
 
 def start_server(tmp: Path, ready: bool = True, **env: str) -> Server:
