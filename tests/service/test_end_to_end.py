@@ -69,6 +69,8 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     # Same model, same camera, same kernel: equal up to one 8-bit step of rounding.
     assert np.abs(served - expected).max() <= 1
 
+    _check_outputs(live.url, job["id"], camera, served)
+
     ply = httpx.get(f"{live.url}/v1/models/{job['id']}/export/ply", timeout=60)
     assert ply.status_code == 200
     path = live.data_dir.parent / "model.ply"
@@ -76,3 +78,45 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     from sparsesplat.engine.export.ply import read_ply
 
     assert len(read_ply(path)["means"]) == model["n_gaussians"] > 0
+
+
+def _check_outputs(url: str, model_id: str, camera: dict, served: np.ndarray) -> None:
+    """Every output kind of the render route, the GET form and a camera path."""
+    import zipfile
+
+    render = f"{url}/v1/models/{model_id}/render"
+
+    def post(**body: object) -> httpx.Response:
+        response = httpx.post(render, json={"camera": camera, **body}, timeout=120)
+        assert response.status_code == 200, response.text
+        return response
+
+    h, w = served.shape[:2]
+    for output, media in (("jpeg", "image/jpeg"), ("webp", "image/webp")):
+        answer = post(output=output)
+        assert answer.headers["content-type"] == media
+        decoded = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), np.int16)
+        assert decoded.shape == served.shape and np.abs(decoded - served).mean() < 8
+    alpha = np.asarray(Image.open(io.BytesIO(post(output="alpha").content)))
+    assert alpha.shape == (h, w) and alpha.dtype == np.uint8 and alpha.max() > 0
+    depth = np.load(io.BytesIO(post(output="npy").content), allow_pickle=False)
+    assert depth.shape == (h, w) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    answer = post(output="depth16")
+    depth16 = np.asarray(Image.open(io.BytesIO(answer.content)), dtype=np.float64)
+    scale = float(answer.headers["x-depth-scale"])
+    covered = depth > 0
+    assert covered.any() and np.abs(depth16[covered] / scale - depth[covered]).max() <= 1 / scale
+    small = np.asarray(Image.open(io.BytesIO(post(downscale=2).content)))
+    assert small.shape[:2] == (h // 2, w // 2)
+
+    query = {k: v for k, v in camera.items() if k != "matrix"}
+    query["matrix"] = ",".join(str(x) for row in camera["matrix"] for x in row)
+    by_get = httpx.get(render, params=query, timeout=120)
+    assert by_get.status_code == 200
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(by_get.content)).convert("RGB")),
+                          served.astype(np.uint8))  # fmt: skip
+
+    path = httpx.post(render, json={"path": [camera, camera]}, timeout=120)
+    assert path.headers["content-type"] == "application/zip"
+    with zipfile.ZipFile(io.BytesIO(path.content)) as archive:
+        assert archive.namelist() == ["0000.png", "0001.png"]
