@@ -45,7 +45,12 @@ def describe_scene(args: argparse.Namespace) -> dict[str, Any]:
     import torch
 
     from sparsesplat.engine.datasets import load_scene, source_image_count
-    from sparsesplat.engine.datasets.common import camera_layout, choose_preset, has_alpha
+    from sparsesplat.engine.datasets.common import (
+        background_reason,
+        camera_layout,
+        choose_preset,
+        has_alpha,
+    )
     from sparsesplat.engine.priors import compute_priors
 
     scene = load_scene(args.path, views=args.views, format=args.format)
@@ -77,13 +82,7 @@ def describe_scene(args: argparse.Namespace) -> dict[str, Any]:
         "far": scene.far,
         "init_box": scene.init_box,
         "background": [float(c) for c in scene.background],
-        "background_reason": (
-            "NeRF-synthetic protocol: RGBA composited on white"
-            if scene.format == "blender"
-            else "images have alpha: composited on white (the object-capture convention)"
-            if alpha
-            else "no alpha channel: black, seen only where the model is empty"
-        ),
+        "background_reason": background_reason(scene),
         "alpha": alpha,
         "layout": {
             "kind": layout.kind,

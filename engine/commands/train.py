@@ -35,11 +35,11 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe",
-    "dtu": "DTU scans, and inward-looking captures of an object on a textured background",
+    "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box",
-    "object": "objects on an empty background (images with alpha), any unit: the Blender "
-    "recipe with the init box from the cameras",
-    "default": "forward-facing captures (phone photos of a scene): the LLFF recipe",
+    "object": "an object on an empty background (images with alpha, or a plain white/black "
+    "backdrop), any unit: the Blender recipe with the init box from the cameras",
+    "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF recipe",
 }
 # When to use each preset. Kept here, not in engine.train.config, because this module must not
 # import torch at parse time; tests/cli checks that it names exactly the presets that exist.
@@ -49,8 +49,8 @@ EPILOG = (
     "printed):\n"
     + "\n".join(f"  {name:8s} {_PRESET_HELP[name]}" for name in PRESET_NAMES)
     + "\n  automatic: the paper's preset for the llff, dtu and blender formats; otherwise "
-    "'object' when the images have alpha, 'dtu' when the cameras look inward at an object, "
-    "'default' when they face forward.\n\n"
+    "'object' when the images have alpha or a plain white/black backdrop at their borders, "
+    "else 'default'.\n\n"
     "depth priors (--prior):\n" + "\n".join(f"  {kind}" for kind in PRIOR_KINDS) + "\n\n"
     "background: one setting for targets and renders (--set background=white|black|gray|"
     "[r,g,b]); by default white for images with alpha, else the format's (black).\n"

@@ -103,13 +103,56 @@ def has_alpha(scene: Scene) -> bool:
     return any(v.alpha is not None for v in scene.train + scene.test)
 
 
+PLAIN_BORDER_FRACTION = 0.95
+"""A capture without alpha is 'on a plain background' when at least this fraction of the
+training images' border pixels are pure white (or pure black), within 4/255."""
+
+
+def plain_background(views: Sequence[View], border: int = 2) -> tuple[float, ...] | None:
+    """WHITE or BLACK when the border pixels of ``views`` are (nearly all) that colour: an
+    object photographed on a plain backdrop or rendered on one; else None."""
+    if not views:
+        return None
+    rings = []
+    for v in views:
+        img = v.image
+        b = max(1, min(border, img.shape[0] // 4, img.shape[1] // 4))
+        rings += [img[:b].reshape(-1, 3), img[-b:].reshape(-1, 3)]
+        rings += [img[b:-b, :b].reshape(-1, 3), img[b:-b, -b:].reshape(-1, 3)]
+    pixels = torch.cat(rings).float()
+    tol = 4.0 / 255.0
+    for colour in (WHITE, BLACK):
+        near = ((pixels - torch.tensor(colour)).abs() <= tol).all(dim=1)
+        if float(near.float().mean()) >= PLAIN_BORDER_FRACTION:
+            return colour
+    return None
+
+
 def default_background(views: Sequence[View], fallback: Sequence[float]) -> tuple[float, ...]:
-    """The background for images with alpha: white (the object-capture convention of
-    NeRF-synthetic and most cut-out captures: dark objects stay visible and an empty model
-    cannot score well by rendering nothing), else ``fallback`` (the format's)."""
+    """The scene background when the user sets none. Images with alpha: white (the object-
+    capture convention of NeRF-synthetic and most cut-out captures: dark objects stay visible
+    and an empty model cannot score well by rendering nothing). Without alpha: the plain
+    backdrop the images show at their borders (white or black), else ``fallback`` (the
+    format's; it only shows through empty space)."""
     if any(v.alpha is not None for v in views):
         return WHITE
+    plain = plain_background(views)
+    if plain is not None:
+        return plain
     return tuple(float(c) for c in fallback)
+
+
+def background_reason(scene: Scene) -> str:
+    """Why ``scene.background`` is what it is (one phrase, for ``scene info``)."""
+    if scene.format == "blender":
+        return "NeRF-synthetic protocol: RGBA composited on white"
+    if has_alpha(scene):
+        return "images have alpha: composited on white (the object-capture convention)"
+    plain = plain_background(scene.train)
+    if plain is not None and tuple(scene.background.tolist()) == plain:
+        name = "white" if plain == WHITE else "black"
+        return f"the images show a plain {name} backdrop at their borders"
+    return "no alpha channel: black, seen only where the model is empty"
 
 
 def recomposite(view: View, old: Tensor, new: Tensor) -> View:
@@ -335,17 +378,21 @@ FORMAT_PRESETS = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
 def choose_preset(scene: Scene) -> tuple[str, str]:
     """The training preset for ``scene`` when the user named none, and why (one phrase).
 
-    Formats with a paper protocol get it (llff, dtu, blender). Otherwise: images with alpha
-    are an object on an empty background -> ``object``; cameras converging on an object with
-    a wide spread of view directions -> ``dtu`` (the paper's recipe for inward-looking object
-    captures on a textured background); anything else is forward-facing -> ``default`` (the
-    LLFF recipe)."""
+    Formats with a paper protocol get it (llff, dtu, blender). Otherwise an object on an
+    empty background (images with alpha, or a plain white/black backdrop at every border)
+    gets ``object``, and everything else ``default`` (the LLFF recipe), whether the cameras
+    face forward or look inward: on the inward-looking instant-ngp ``fox`` (3 views, 1/4
+    resolution, 1500 iterations) the LLFF recipe scored 13.6 dB against 12.5 dB for the dtu
+    recipe, and the LLFF-format scenes of shared/data are inward orbits trained with it. The
+    reason names the camera layout either way."""
     if scene.format in FORMAT_PRESETS:
         name = FORMAT_PRESETS[scene.format]
         return name, f"{scene.format} format: the paper's protocol for it"
+    layout = f"cameras {camera_layout([v.camera for v in scene.train + scene.test]).describe()}"
     if has_alpha(scene):
-        return "object", "the images have alpha: an object on an empty background"
-    layout = camera_layout([v.camera for v in scene.train + scene.test])
-    if layout.kind == "inward-looking":
-        return "dtu", f"cameras are {layout.describe()}: an object capture"
-    return "default", f"cameras are {layout.describe()}"
+        return "object", f"the images have alpha (an object on an empty background); {layout}"
+    plain = plain_background(scene.train)
+    if plain is not None:
+        name = "white" if plain == WHITE else "black"
+        return "object", f"the images show an object on a plain {name} backdrop; {layout}"
+    return "default", f"{layout}; textured surroundings, no alpha"

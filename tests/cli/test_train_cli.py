@@ -27,7 +27,8 @@ def test_help_lists_presets_prior_kinds_and_exit_codes() -> None:
         assert kind in text
     for name in PRESETS:
         assert f"  {name} " in text, name
-    assert "images have alpha" in text and "look inward" in text and "exit codes" in text
+    assert "images have alpha" in text and "plain white/black backdrop" in text
+    assert "exit codes" in text
     assert set(train_cmd.PRESET_NAMES) == set(PRESETS), "help must name exactly the presets"
 
 
@@ -56,7 +57,7 @@ def test_default_output_is_a_progress_line_and_log_level_works(tmp_path: Path) -
     result = run_cli("train", str(scene), "--out", str(tmp_path / "run"), *SMOKE, env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     err = result.stderr
-    assert "preset dtu: cameras are inward-looking" in err
+    assert "preset object: the images show an object on a plain black backdrop" in err
     assert "20/20 [####################]" in err and "left" in err and "PSNR" in err
     assert "(background " in err
     assert "loading native CPU extensions" in err, "SPARSESPLAT_LOG_LEVEL=INFO reaches the engine"

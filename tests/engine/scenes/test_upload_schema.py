@@ -161,13 +161,27 @@ def test_background_is_one_setting_and_recompositing_is_exact(tmp_path: Path) ->
     assert torch.equal(with_background(plain, (1, 1, 1)).train[0].image, plain.train[0].image)
 
 
-def test_preset_choice_follows_the_camera_layout(tmp_path: Path) -> None:
+def test_preset_choice_follows_alpha_and_backdrop_and_names_the_layout(tmp_path: Path) -> None:
+    # The object rendered on black, saved without alpha: a plain black backdrop.
     ring = load_scene(write_object_scene(tmp_path / "ring", size=24, alpha=False))
-    assert choose_preset(ring)[0] == "dtu" and "inward-looking" in choose_preset(ring)[1]
-    # write_folder_scene: 4 cameras on a 34-degree arc looking at the origin: forward-facing.
+    name, reason = choose_preset(ring)
+    assert name == "object" and "plain black backdrop" in reason and "inward-looking" in reason
+    assert torch.equal(ring.background, torch.zeros(3))
+    # The same object on white, without alpha: white is detected and becomes the background.
+    white = write_object_scene(tmp_path / "white", size=24)
+    for f in white.glob("*.png"):
+        with Image.open(f) as img:
+            flat = Image.new("RGB", img.size, (255, 255, 255))
+            flat.paste(img, mask=img.getchannel("A"))
+        flat.save(f)
+    on_white = load_scene(white)
+    assert on_white.train[0].alpha is None and torch.equal(on_white.background, torch.ones(3))
+    assert choose_preset(on_white)[0] == "object"
+    # write_folder_scene: random textures seen from a 34-degree arc: forward-facing, textured.
     arc = load_scene(write_folder_scene(tmp_path / "arc"))
     name, reason = choose_preset(arc)
     assert name == "default" and "forward-facing" in reason
+    assert torch.equal(arc.background, torch.zeros(3))
 
 
 def test_trainer_targets_and_renders_share_the_configured_background(tmp_path: Path) -> None:
