@@ -18,6 +18,30 @@ const MAX_HEIGHT = 600;
 const PRE_BLUR = 0.3;
 
 const BACKGROUNDS = { white: 0xffffff, black: 0x000000, grey: 0x808080 };
+/** Splats drawn while the camera moves on a software WebGL renderer (SwiftShader, llvmpipe):
+ * their cost grows with the splat count, so motion uses Spark's level-of-detail tree and the
+ * full model is drawn once the camera stops. Hardware renderers draw every splat always. */
+const SOFTWARE_MOTION_SPLATS = 5000;
+const MOTION_OPTIONS = [0, 50000, 20000, 10000, 5000, 2000];
+/** Milliseconds after the last camera change before the still view is drawn in full. */
+const SETTLE_MS = 250;
+/** Level-of-detail budget of the still view: more than any model here, so every splat of at
+ * least a pixel is drawn. */
+const STILL_SPLATS = 20_000_000;
+
+function isSoftwareRenderer(renderer) {
+  const gl = renderer.getContext();
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  const name = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+  return { software: /swiftshader|llvmpipe|softpipe|software/i.test(String(name)), name: String(name) };
+}
+
+/** The vertex count of a binary .ply header (the number of Gaussians). */
+function plyVertexCount(bytes) {
+  const head = new TextDecoder().decode(bytes.subarray(0, Math.min(bytes.length, 4096)));
+  const m = head.match(/element vertex (\d+)/);
+  return m ? Number(m[1]) : null;
+}
 
 function backgroundFor(job) {
   const spec = job.spec || {};
@@ -57,6 +81,11 @@ export function mount(container, { jobId }) {
   const renderButton = el("button#viewer-render", { type: "button", disabled: true }, "Render this view on the server");
   const spin = el("input#viewer-spin", { type: "checkbox" });
   const showFrusta = el("input#viewer-frusta", { type: "checkbox", checked: true });
+  const motion = el(
+    "select#viewer-motion",
+    {},
+    MOTION_OPTIONS.map((n) => el("option", { value: String(n) }, n ? `${n.toLocaleString()} splats` : "all splats")),
+  );
   const background = el(
     "select#viewer-background",
     {},
@@ -81,6 +110,7 @@ export function mount(container, { jobId }) {
         el("label.check", {}, showFrusta, " show camera frusta"),
         el("label.check", {}, spin, " auto-rotate"),
         el("label", {}, "Background ", background),
+        el("label", { title: "Fewer splats while the camera moves keep software WebGL interactive; the still view is always complete." }, "While moving, draw ", motion),
         el("p", {}, renderButton),
         el("p", {}, pose),
         info,
@@ -101,6 +131,7 @@ export function mount(container, { jobId }) {
   scene.add(frusta);
   let controls = null;
   let mesh = null;
+
   let model = null;
   let job = null;
   let cameras = [];
@@ -108,16 +139,22 @@ export function mount(container, { jobId }) {
   let pinned = null; // the wire camera jumped to, until the user moves
   let size = { width: 640, height: 480 };
   let aspect = 4 / 3;
-  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0 };
+  const gpu = isSoftwareRenderer(renderer);
+  motion.value = String(gpu.software ? SOFTWARE_MOTION_SPLATS : 0);
+  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0, renderer: gpu.name, software: gpu.software, drawn: "all", moving: false, stillFrames: 0 };
+  let lastChange = -Infinity;
+  let interacting = false;
+  let snapshotWaiters = [];
   let resolveReady;
   const ready = new Promise((resolve) => (resolveReady = resolve));
 
   function layout() {
     const available = Math.max(320, Math.min(MAX_WIDTH, wrap.clientWidth || MAX_WIDTH));
     let width = available;
+    const maxHeight = Math.max(240, Math.min(MAX_HEIGHT, window.innerHeight - 160));
     let height = Math.round(width / aspect);
-    if (height > MAX_HEIGHT) {
-      height = MAX_HEIGHT;
+    if (height > maxHeight) {
+      height = maxHeight;
       width = Math.round(height * aspect);
     }
     size = { width, height };
@@ -127,27 +164,54 @@ export function mount(container, { jobId }) {
     dirty = true;
   }
 
+  /** Draw every splat when still, the level-of-detail budget while moving. */
+  function applyDetail(now) {
+    if (!mesh) return;
+    const budget = Number(motion.value);
+    const moving = spin.checked || interacting || now - lastChange < SETTLE_MS;
+    stats.moving = moving;
+    const want = moving && budget > 0 ? budget : "all";
+    if (want === stats.drawn) return;
+    stats.drawn = want;
+    spark.lodSplatCount = want === "all" ? STILL_SPLATS : want;
+    dirty = true;
+  }
+
   function tick(now) {
     if (controls && spin.checked) {
       controls.update();
       dirty = true;
+      lastChange = now;
     }
+    applyDetail(now);
     if (dirty) {
       dirty = false;
       renderer.render(scene, camera);
       stats.frames += 1;
       stats.windowFrames += 1;
+      stats.stillFrames = stats.drawn === "all" && !stats.moving ? stats.stillFrames + 1 : 0;
+      // A snapshot is taken right after a full-detail draw whose splat order is settled (or,
+      // should sorting never settle, after a few full-detail draws).
+      const settled = !spark.sorting && !spark.sortDirty;
+      if (snapshotWaiters.length && stats.stillFrames > 0 && (settled || stats.stillFrames >= 4)) {
+        const url = canvas.toDataURL("image/png");
+        for (const resolve of snapshotWaiters) resolve(url);
+        snapshotWaiters = [];
+      }
     }
+    if (snapshotWaiters.length && !dirty && !stats.moving && !spark.sorting) dirty = true;
     if (now - stats.windowStart >= 1000) {
       stats.fps = (stats.windowFrames * 1000) / (now - stats.windowStart);
       stats.windowStart = now;
       stats.windowFrames = 0;
-      fpsBox.textContent = stats.fps > 0 ? `${stats.fps.toFixed(1)} fps` : "idle";
+      const drawn = stats.drawn === "all" ? "all splats" : `≤${stats.drawn.toLocaleString()} splats`;
+      fpsBox.textContent = stats.fps > 0 ? `${stats.fps.toFixed(1)} fps · ${drawn}` : "still";
     }
   }
 
   function jumpTo(index) {
     const wire = cameras[index];
+    lastChange = performance.now();
     placeThreeCamera(camera, wire);
     camera.aspect = size.width / size.height;
     camera.updateProjectionMatrix();
@@ -158,6 +222,9 @@ export function mount(container, { jobId }) {
     controls.target.set(...centre.map((c, k) => c + forward[k] * distance));
     pinned = wire;
     spin.checked = false;
+    controls.autoRotate = false;
+    // The camera's own frustum would frame the view's edges: hide it while looking through it.
+    for (const f of frusta.children) f.visible = f.userData.index !== index;
     describePose();
     for (const button of cameraList.querySelectorAll("button")) button.classList.toggle("active", Number(button.dataset.index) === index);
     dirty = true;
@@ -174,11 +241,16 @@ export function mount(container, { jobId }) {
     return pinned ? pinhole(pinned) : threeCameraToPinhole(camera, size.width, size.height);
   }
 
+  /** A PNG data URL of the canvas at the current pose, every splat drawn. */
+  function snapshot() {
+    dirty = true;
+    return new Promise((resolve) => snapshotWaiters.push(resolve));
+  }
+
   async function renderExact() {
     const wire = currentCamera();
-    renderer.render(scene, camera); // draw now so the snapshot is this exact pose
-    const snapshot = canvas.toDataURL("image/png");
     renderButton.disabled = true;
+    const browser = await snapshot();
     const started = performance.now();
     compare.hidden = false;
     compare.replaceChildren(el("p.muted", {}, "Rendering on the server…"));
@@ -191,7 +263,7 @@ export function mount(container, { jobId }) {
         el(
           "div.pair",
           {},
-          el("figure", {}, el("img#compare-viewer", { src: snapshot, alt: "browser drawing" }), el("figcaption", {}, `Browser (Spark, baked colour), ${size.width}×${size.height}`)),
+          el("figure", {}, el("img#compare-viewer", { src: browser, alt: "browser drawing" }), el("figcaption", {}, `Browser (Spark, baked colour), ${size.width}×${size.height}`)),
           el("figure", {}, el("img#compare-server", { src: url, alt: "server render", dataset: { camera: JSON.stringify(wire) } }), el("figcaption", {}, `Server (neural colour), ${wire.width}×${wire.height}, ${seconds.toFixed(2)} s`)),
         ),
         el("details", {}, el("summary", {}, "Camera sent (POST /v1/models/{id}/render)"), el("pre", {}, JSON.stringify({ camera: wire, output: "png" }, null, 1))),
@@ -234,15 +306,27 @@ export function mount(container, { jobId }) {
     controls.target.set(...orbit.centre);
     controls.autoRotateSpeed = 4;
     controls.addEventListener("start", () => {
+      interacting = true;
       pinned = null;
+      for (const f of frusta.children) f.visible = true;
       describePose();
       for (const b of cameraList.querySelectorAll("button.active")) b.classList.remove("active");
     });
-    controls.addEventListener("change", () => (dirty = true));
+    controls.addEventListener("change", () => {
+      dirty = true;
+      lastChange = performance.now();
+    });
+    controls.addEventListener("end", () => {
+      interacting = false;
+      lastChange = performance.now();
+    });
     spin.addEventListener("change", () => {
       controls.autoRotate = spin.checked;
+      lastChange = performance.now();
+      dirty = true;
       if (spin.checked) {
         pinned = null;
+        for (const f of frusta.children) f.visible = true;
         describePose();
       }
     });
@@ -273,6 +357,10 @@ export function mount(container, { jobId }) {
     }
     if (unmounted) return;
     loading.textContent = "Preparing the splats…";
+    // Every splat as exported for the still view; on a software renderer also a
+    // level-of-detail copy (Spark's LoD tree) drawn while the camera moves.
+    // Spark's level-of-detail tree: the still view draws every splat of at least a pixel (the
+    // budget far above any model here), a moving camera at most the chosen number.
     mesh = new SplatMesh({ fileBytes: bytes, fileName: "model.ply", lod: true });
     scene.add(mesh);
     await mesh.initialized;
@@ -280,13 +368,14 @@ export function mount(container, { jobId }) {
     const seconds = (performance.now() - started) / 1000;
     loading.hidden = true;
     renderButton.disabled = false;
-    const n = mesh.packedSplats ? mesh.packedSplats.numSplats : model.n_gaussians;
+    const n = plyVertexCount(bytes) ?? model.n_gaussians;
     info.replaceChildren(
       ...[
         ["Gaussians", n.toLocaleString()],
         [".ply", `${fmtBytes(bytes.length)}, loaded in ${seconds.toFixed(1)} s`],
         ["Trained", `${model.iterations} iterations`],
         ["Held-out PSNR", model.metrics.psnr != null ? `${model.metrics.psnr.toFixed(2)} dB` : "–"],
+        ["WebGL", `${gpu.software ? "software" : "hardware"}: ${gpu.name}`],
       ].flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]),
     );
     canvas.dataset.ready = "1";
@@ -312,6 +401,7 @@ export function mount(container, { jobId }) {
     dirty = true;
   });
   background.addEventListener("change", setBackground);
+
   renderButton.addEventListener("click", renderExact);
   const onResize = () => {
     if (controls) layout();
@@ -348,12 +438,14 @@ export function mount(container, { jobId }) {
     jumpTo,
     currentCamera,
     renderExact,
+    snapshot,
     unmount() {
       unmounted = true;
       window.removeEventListener("resize", onResize);
       renderer.setAnimationLoop(null);
       if (controls) controls.dispose();
       if (mesh) mesh.dispose();
+
       renderer.dispose();
       for (const url of urls) URL.revokeObjectURL(url);
     },

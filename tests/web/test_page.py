@@ -1,0 +1,553 @@
+"""The web page (issue #13) in headless Chromium against a real service on 127.0.0.1.
+
+One smoke-scale job, submitted through the page's own form, serves every test: the chart must
+gain points while it trains (and survive a dropped WebSocket without gaps or duplicates), the
+server renders the page shows must equal ``POST /v1/models/{id}/render`` pixel for pixel, the
+viewer must draw the scene and follow the camera, and no page may log a console error.
+Screenshots of each page land in test-artifacts/web/ (git-ignored).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import random
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from sparsesplat.api.cameras import PinholeCamera
+from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
+from tests.service.scenes import MIC, write_mic_upload
+from tests.web.conftest import REPO, SMALL_VIEWPORT, image_bytes, new_page
+from tests.web.synthetic import write_synthetic_ply
+
+pytestmark = pytest.mark.timeout(900)
+
+TERMINAL = {"succeeded", "failed", "cancelled"}
+PINHOLE_FIELDS = ("convention", "pose", "matrix", "fx", "fy", "cx", "cy", "width", "height")
+
+
+def pixels(png: bytes) -> np.ndarray:
+    """Decoded RGB(A) pixels of an encoded image."""
+    with Image.open(io.BytesIO(png)) as image:
+        return np.asarray(image.convert("RGBA"))
+
+
+def post_render(url: str, model_id: str, camera: dict[str, Any]) -> bytes:
+    """``POST /v1/models/{id}/render`` for one camera (PNG)."""
+    response = httpx.post(
+        f"{url}/v1/models/{model_id}/render", json={"camera": camera, "output": "png"}, timeout=120
+    )
+    assert response.status_code == 200, response.text
+    return response.content
+
+
+def wire_cameras(url: str, model_id: str) -> list[dict[str, Any]]:
+    """The model's cameras as PinholeCamera dicts, with their split."""
+    model = httpx.get(f"{url}/v1/models/{model_id}", timeout=30).json()
+    return [{**{k: c[k] for k in PINHOLE_FIELDS}, "split": c["split"]} for c in model["cameras"]]
+
+
+def settle(page: Any) -> str:
+    """Wait until the viewer has drawn a complete, sorted frame; returns it as a data URL."""
+    return str(page.evaluate("() => window.sparsesplat.view.snapshot()"))
+
+
+@dataclass
+class TrainedJob:
+    """The module's job, submitted and watched through the page."""
+
+    id: str
+    state: str
+    seen: list[tuple[str, int]] = field(default_factory=list)
+    """(state, chart points) sampled while it trained."""
+    chart_points: int = 0
+    connections: int = 0
+    console_errors: list[str] = field(default_factory=list)
+    api_key_in_session: Any = None
+
+
+@pytest.fixture(scope="module")
+def mic_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """3 training + 2 held-out views of the shared Blender mic at 100x100 (cameras.json)."""
+    if not MIC.is_dir():
+        pytest.skip(f"shared scene missing: {MIC}")
+    return write_mic_upload(tmp_path_factory.mktemp("mic") / "upload", size=100)
+
+
+@pytest.fixture(scope="module")
+def trained_job(
+    browser: Any, service: LiveService, mic_folder: Path, artifacts: Path
+) -> TrainedJob:
+    """Submit the mic upload through the form (30 iterations, a record every 3 s), watch the
+    job page while it trains (dropping the WebSocket once), until the job ends."""
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    page.wait_for_selector("#job-form")
+    files = [mic_folder / "cameras.json", *sorted(mic_folder.glob("*.png"))]
+    page.set_input_files("#job-files", [str(f) for f in files])
+    page.wait_for_selector("#job-submit:not([disabled])")
+    assert "5 frames (3 training, 2 held-out)" in page.text_content("#upload-summary")
+    page.select_option("#job-length", "iterations")
+    page.fill("#job-length-value", "30")
+    page.fill("#job-record-interval", "3")
+    page.click("#job-submit")
+    page.wait_for_url(re.compile(r"#/jobs/job_[0-9a-f]+$"))
+    job = TrainedJob(id=page.url.rsplit("/", 1)[1], state="queued")
+    page.wait_for_selector("#job-state .badge")
+    dropped = False
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        state = page.text_content("#job-state") or ""
+        points = int(page.get_attribute("#job-chart", "data-points") or 0)
+        job.seen.append((state, points))
+        if state == "running" and points >= 1 and not dropped:
+            page.evaluate("() => window.sparsesplat.events.drop()")  # as a network failure would
+            dropped = True
+        if state in TERMINAL:
+            break
+        time.sleep(0.5)
+    job.state = page.text_content("#job-state") or ""
+    page.wait_for_function("() => document.querySelector('#job-live').dataset.status == 'finished'")
+    job.chart_points = int(page.get_attribute("#job-chart", "data-points") or 0)
+    job.connections = int(page.evaluate("() => window.sparsesplat.events.connections"))
+    job.api_key_in_session = page.evaluate("() => sessionStorage.getItem('sparsesplat.apiKey')")
+    page.screenshot(path=str(artifacts / "job-after-training.png"), full_page=True)
+    job.console_errors = list(console.errors)
+    context.close()
+    return job
+
+
+def test_page_and_assets_are_served_by_the_server(service: LiveService) -> None:
+    """``/`` is the page; every importmap entry is a vendored file served as JavaScript; no
+    asset comes from elsewhere; each vendored package carries its licence."""
+    index = httpx.get(service.url + "/", timeout=10)
+    assert index.status_code == 200
+    assert index.headers["content-type"].startswith("text/html")
+    html = index.text
+    assert "http://" not in html and "https://" not in html, "the page must not use a CDN"
+    importmap = json.loads(re.search(r'<script type="importmap">(.*?)</script>', html, re.S)[1])
+    for name, target in importmap["imports"].items():
+        assert target.startswith("/static/vendor/"), name
+        if target.endswith("/"):
+            continue
+        answer = httpx.get(service.url + target, timeout=30)
+        assert answer.status_code == 200, target
+        assert answer.headers["content-type"].startswith("text/javascript"), target
+    static = REPO / "server" / "static"
+    for package in ("three", "spark", "uplot"):
+        assert (static / "vendor" / package / "LICENSE").is_file(), package
+    for module in (static / "js").glob("*.js"):
+        for spec in re.findall(r'from\s+"([^"]+)"|import\("([^"]+)"\)', module.read_text()):
+            target = spec[0] or spec[1]
+            assert (
+                target.startswith("./")
+                or target in importmap["imports"]
+                or any(target.startswith(k) for k in importmap["imports"] if k.endswith("/"))
+            ), f"{module.name} imports {target}"
+    for bad in ("/static/../app.py", "/static/%2e%2e/routes/pages.py", "/static/nope.js"):
+        assert httpx.get(service.url + bad, timeout=10).status_code == 404, bad
+
+
+def test_camera_convention_between_three_js_and_the_api(browser: Any, service: LiveService) -> None:
+    """A world point lands on the same pixel in three.js (the page's cameras) and in the
+    API's PinholeCamera conversion, for every convention and pose direction; the pose the page
+    sends back for a three.js camera is the same camera."""
+    rng = random.Random(7)
+    cases = []
+    for convention in ("opencv", "opengl"):
+        for pose in ("camera_to_world", "world_to_camera"):
+            for _ in range(3):
+                axis = [rng.gauss(0, 1) for _ in range(3)]
+                norm = math.sqrt(sum(a * a for a in axis))
+                rot = _rotation([a / norm for a in axis], rng.uniform(-math.pi, math.pi))
+                t = [rng.uniform(-3, 3) for _ in range(3)]
+                matrix = [[*rot[i], t[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
+                width, height = rng.choice([(640, 480), (100, 100), (504, 378)])
+                focal = rng.uniform(0.6, 1.5) * width
+                cases.append(
+                    {
+                        "convention": convention, "pose": pose, "matrix": matrix,
+                        "fx": focal, "fy": focal, "cx": width / 2, "cy": height / 2,
+                        "width": width, "height": height,
+                    }
+                )  # fmt: skip
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    page.wait_for_selector("#view[data-view='jobs']")
+    results = page.evaluate(
+        """async (cases) => {
+            const THREE = await import("three");
+            const C = await import("/static/js/cameras.js");
+            return cases.map((wire) => {
+                const aspect = wire.width / wire.height;
+                const camera = new THREE.PerspectiveCamera(50, aspect, 0.01, 1000);
+                C.placeThreeCamera(camera, wire);
+                // Points in front of the camera, built in its own (OpenGL) frame.
+                const points = [];
+                for (let i = 0; i < 8; i++) {
+                    const local = new THREE.Vector3(
+                        (i % 3 - 1) * 0.4, (Math.floor(i / 3) % 3 - 1) * 0.3, -(1.5 + i * 0.7));
+                    points.push(local.applyMatrix4(camera.matrixWorld).toArray());
+                }
+                const pixels = points.map((p) => {
+                    const ndc = new THREE.Vector3(...p).project(camera);
+                    return [(ndc.x + 1) / 2 * wire.width, (1 - ndc.y) / 2 * wire.height];
+                });
+                const back = C.threeCameraToPinhole(camera, wire.width, wire.height);
+                return { points, pixels, back };
+            });
+        }""",
+        cases,
+    )
+    for wire, result in zip(cases, results, strict=True):
+        camera = PinholeCamera.model_validate(wire)
+        w2c = np.array(camera.world_to_camera_opencv())
+        back = PinholeCamera.model_validate(result["back"])  # valid on the wire
+        assert (back.convention, back.pose) == ("opengl", "camera_to_world")
+        np.testing.assert_allclose(np.array(back.world_to_camera_opencv()), w2c, atol=1e-9)
+        assert (back.fx, back.fy, back.cx, back.cy) == pytest.approx(
+            (camera.fx, camera.fy, camera.cx, camera.cy), rel=1e-12
+        )
+        for point, pixel in zip(result["points"], result["pixels"], strict=True):
+            x, y, z = (w2c @ np.array([*point, 1.0]))[:3]
+            assert z > 0, "the API puts the point behind the camera: conventions disagree"
+            expected = (camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy)
+            assert pixel == pytest.approx(expected, abs=1e-6), (wire["convention"], wire["pose"])
+    console.assert_clean()
+    context.close()
+
+
+def _rotation(axis: list[float], angle: float) -> list[list[float]]:
+    """Rotation matrix about a unit ``axis`` (Rodrigues)."""
+    x, y, z = axis
+    c, s, C = math.cos(angle), math.sin(angle), 1 - math.cos(angle)
+    return [
+        [c + x * x * C, x * y * C - z * s, x * z * C + y * s],
+        [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
+        [z * x * C - y * s, z * y * C + x * s, c + z * z * C],
+    ]
+
+
+@pytest.mark.shared_data
+def test_form_submits_a_job_and_the_chart_fills_in_while_it_trains(
+    trained_job: TrainedJob, service: LiveService
+) -> None:
+    """The form's job trained; the chart gained points while the job ran; after a dropped
+    connection the page resumed with ?after= and holds every record exactly once."""
+    assert trained_job.state == "succeeded", trained_job.seen[-5:]
+    running_points = sorted({p for s, p in trained_job.seen if s == "running" and p > 0})
+    assert len(running_points) >= 2, f"the chart did not grow while training: {trained_job.seen}"
+    records = httpx.get(f"{service.url}/v1/jobs/{trained_job.id}/metrics", timeout=10).json()
+    assert trained_job.chart_points == len(records) >= 2
+    assert trained_job.connections >= 2, "the dropped WebSocket was not reopened"
+    assert trained_job.api_key_in_session is None, "no key is needed on a loopback server"
+    assert not trained_job.console_errors, trained_job.console_errors
+
+
+@pytest.mark.shared_data
+def test_jobs_list_shows_state_progress_and_metrics(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    row = page.locator(f"#jobs-body tr[data-job-id='{trained_job.id}']")
+    row.wait_for()
+    assert row.get_attribute("data-state") == "succeeded"
+    cells = row.locator("td").all_text_contents()
+    assert "30/30" in cells[2]
+    assert cells[3].endswith("dB") and re.match(r"^0\.\d{3}$", cells[4]), cells
+    console.assert_clean()
+    context.close()
+
+
+@pytest.mark.shared_data
+def test_job_page_heldout_renders_equal_the_render_api(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    """Each held-out view's render on the job page is, pixel for pixel, what
+    ``POST /v1/models/{id}/render`` returns for that camera."""
+    cameras = wire_cameras(service.url, trained_job.id)
+    context, page, console = new_page(browser, service.url)
+    page.goto(f"/#/jobs/{trained_job.id}")
+    test_indices = [i for i, c in enumerate(cameras) if c["split"] == "test"]
+    assert len(test_indices) == 2
+    for index in test_indices:
+        selector = f"#heldout-views img.render[data-camera-index='{index}'][data-ready='1']"
+        page.wait_for_selector(selector)
+        shown = image_bytes(page, selector)
+        camera = {k: cameras[index][k] for k in PINHOLE_FIELDS}
+        expected = post_render(service.url, trained_job.id, camera)
+        assert np.array_equal(pixels(shown), pixels(expected)), f"camera {index}"
+    page.wait_for_selector("#training-views img.render[data-ready='1']")
+    console.assert_clean()
+    context.close()
+
+
+@pytest.mark.shared_data
+def test_viewer_draws_the_scene_and_follows_the_camera(
+    browser: Any, service: LiveService, trained_job: TrainedJob, artifacts: Path
+) -> None:
+    context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
+    page.goto(f"/#/jobs/{trained_job.id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    canvas = page.locator("#viewer-canvas")
+    settle(page)
+    before = pixels(canvas.screenshot()).astype(np.int16)[..., :3]
+    corner = before[2, 2]
+    differs = np.abs(before - corner).max(axis=-1) > 12
+    assert differs.mean() > 0.05, f"canvas looks blank: {differs.mean():.3%} of pixels drawn"
+    assert len(np.unique(before.reshape(-1, 3), axis=0)) > 50, "canvas has almost no colours"
+    box = canvas.bounding_box()
+    assert box is not None
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    page.mouse.move(cx + 120, cy + 30, steps=8)
+    page.mouse.up()
+    assert page.evaluate("() => window.sparsesplat.view.pinned") is None
+    settle(page)
+    after = pixels(canvas.screenshot()).astype(np.int16)[..., :3]
+    change = np.abs(after - before).mean()
+    assert change > 2.0, f"the drawing did not follow the camera (mean change {change:.2f})"
+    page.screenshot(path=str(artifacts / "viewer-after-orbit.png"))
+    console.assert_clean()
+    context.close()
+
+
+@pytest.mark.shared_data
+def test_viewer_server_render_equals_the_render_api(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    """'Render this view on the server' at a held-out camera is exactly the render API's image
+    for that camera; after orbiting, the render is the API's image for the canvas's camera."""
+    cameras = wire_cameras(service.url, trained_job.id)
+    index = next(i for i, c in enumerate(cameras) if c["split"] == "test")
+    context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
+    page.goto(f"/#/jobs/{trained_job.id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    page.click(f"#viewer-cameras button[data-index='{index}']")
+    page.click("#viewer-render")
+    page.wait_for_selector("#compare-server")
+    sent = json.loads(page.get_attribute("#compare-server", "data-camera") or "{}")
+    camera = {k: cameras[index][k] for k in PINHOLE_FIELDS}
+    assert sent == camera, "the pinned camera must be sent exactly as the API listed it"
+    expected = post_render(service.url, trained_job.id, camera)
+    assert np.array_equal(pixels(image_bytes(page, "#compare-server")), pixels(expected))
+    assert page.locator("#compare-viewer").get_attribute("src", timeout=1000).startswith("data:")
+
+    box = page.locator("#viewer-canvas").bounding_box()
+    assert box is not None
+    page.mouse.move(box["x"] + 160, box["y"] + 160)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 260, box["y"] + 140, steps=6)
+    page.mouse.up()
+    assert page.evaluate("() => window.sparsesplat.view.pinned") is None
+    before = page.get_attribute("#compare-server", "data-camera")
+    page.click("#viewer-render")
+    page.wait_for_function(
+        "(b) => { const e = document.querySelector('#compare-server');"
+        " return e !== null && e.dataset.camera !== b; }",
+        arg=before,
+        timeout=180_000,
+    )
+    free = json.loads(page.get_attribute("#compare-server", "data-camera") or "{}")
+    size = page.evaluate("() => window.sparsesplat.view.size")
+    assert (free["pose"], free["width"], free["height"]) == (
+        "camera_to_world", size["width"], size["height"],
+    )  # fmt: skip
+    PinholeCamera.model_validate(free)
+    expected = post_render(service.url, trained_job.id, free)
+    assert np.array_equal(pixels(image_bytes(page, "#compare-server")), pixels(expected))
+    console.assert_clean()
+    context.close()
+
+
+@pytest.mark.shared_data
+def test_cancel_and_delete_from_the_jobs_list(
+    browser: Any, service: LiveService, mic_folder: Path, trained_job: TrainedJob
+) -> None:
+    job = submit(service.url, mic_folder, {**FAST_SPEC, "iterations": 2000})
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    row = page.locator(f"#jobs-body tr[data-job-id='{job['id']}']")
+    row.locator("button", has_text="Cancel").click()
+    wait_state(service.url, job["id"], {"cancelled"}, timeout=120)
+    page.locator(f"#jobs-body tr[data-job-id='{job['id']}'][data-state='cancelled']").wait_for()
+    row.locator("button", has_text="Delete").click()  # confirm() is accepted
+    row.wait_for(state="detached")
+    assert httpx.get(f"{service.url}/v1/jobs/{job['id']}", timeout=10).status_code == 404
+    console.assert_clean()
+    context.close()
+
+
+def test_api_key_entered_once_and_kept_in_the_tab(
+    browser: Any, tmp_path: Path, artifacts: Path
+) -> None:
+    """A server with keys: the page asks once, keeps the key in session storage (a reload does
+    not ask again, another tab does), sends it on requests and on the WebSocket."""
+    key = "web-test-key-0123456789"
+    live = LiveService(tmp_path / "data", env={"SPARSESPLAT_API_KEYS": json.dumps([key])})
+    live.start_api(with_workers=False)
+    try:
+        context, page, console = new_page(browser, live.url)
+        page.goto("/")
+        page.wait_for_selector("#key-dialog[open]")
+        page.fill("#key-input", key)
+        page.click("#key-dialog button[value='save']")
+        page.wait_for_selector("#jobs-empty:not([hidden])")
+        assert page.evaluate("() => sessionStorage.getItem('sparsesplat.apiKey')") == key
+        page.reload()
+        page.wait_for_selector("#jobs-empty:not([hidden])")
+        assert not page.is_visible("#key-dialog")
+        # The first request went out without a key: its 401 is the only console error allowed.
+        console.assert_clean(allowed=("401",))
+        assert sum("401" in e for e in console.errors) == 1
+        job = httpx.post(
+            live.url + "/v1/jobs",
+            headers={"Authorization": f"Bearer {key}"},
+            files=_tiny_upload(),
+            timeout=30,
+        )
+        assert job.status_code == 201, job.text
+        page.goto(f"/#/jobs/{job.json()['id']}")
+        page.wait_for_function(
+            "() => document.querySelector('#job-live')?.dataset.status === 'live'"
+        )
+        page.screenshot(path=str(artifacts / "job-queued-with-api-key.png"))
+        context.close()
+        other, other_page, _ = new_page(browser, live.url)
+        other_page.goto("/")
+        other_page.wait_for_selector("#key-dialog[open]")
+        other.close()
+    finally:
+        live.stop()
+
+
+def _tiny_upload() -> list[tuple[str, Any]]:
+    """A valid two-view upload of 16x16 images (the job only has to exist)."""
+    parts: list[tuple[str, Any]] = []
+    frames = []
+    for i in range(2):
+        buffer = io.BytesIO()
+        Image.new("RGB", (16, 16), (40 * i, 90, 160)).save(buffer, format="PNG")
+        parts.append(("images", (f"v{i}.png", buffer.getvalue(), "image/png")))
+        frames.append(
+            {
+                "image": f"v{i}.png", "fx": 20.0, "fy": 20.0, "cx": 8.0, "cy": 8.0,
+                "matrix": [[1, 0, 0, 0.2 * i], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1]],
+            }
+        )  # fmt: skip
+    cameras = {"convention": "opencv", "pose": "camera_to_world", "frames": frames}
+    parts.append(("cameras", ("cameras.json", json.dumps(cameras).encode(), "application/json")))
+    return parts
+
+
+@pytest.mark.shared_data
+def test_screenshots_of_each_page(
+    browser: Any, service: LiveService, trained_job: TrainedJob, artifacts: Path
+) -> None:
+    """jobs.png, job.png and viewer.png in test-artifacts/web/ (looked at by a person)."""
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    page.locator(f"#jobs-body tr[data-job-id='{trained_job.id}']").wait_for()
+    page.screenshot(path=str(artifacts / "jobs.png"), full_page=True)
+    page.goto(f"/#/jobs/{trained_job.id}")
+    page.wait_for_selector("#heldout-views img.render[data-ready='1']")
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('img.render')].every((i) => i.dataset.ready === '1')"
+    )
+    page.screenshot(path=str(artifacts / "job.png"), full_page=True)
+    page.goto(f"/#/jobs/{trained_job.id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    page.click("#viewer-cameras button[data-split='test']")
+    page.click("#viewer-render")
+    page.wait_for_selector("#compare-server")
+    page.screenshot(path=str(artifacts / "viewer.png"), full_page=True)
+    for name in ("jobs.png", "job.png", "viewer.png"):
+        assert (artifacts / name).stat().st_size > 10_000, name
+    console.assert_clean()
+    context.close()
+
+
+def _chromium_cpu_seconds() -> float:
+    """CPU seconds used so far by the Chromium processes this test process started."""
+    children: dict[int, list[int]] = {}
+    names: dict[int, str] = {}
+    ticks: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        name = stat[stat.index("(") + 1 : stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2 :].split()
+        pid, ppid = int(entry), int(fields[1])
+        children.setdefault(ppid, []).append(pid)
+        names[pid] = name
+        ticks[pid] = int(fields[11]) + int(fields[12])
+    total, stack = 0, [os.getpid()]
+    while stack:
+        pid = stack.pop()
+        for child in children.get(pid, []):
+            stack.append(child)
+            if "chrom" in names.get(child, ""):
+                total += ticks[child]
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+def test_viewer_frame_rate_with_50k_gaussians(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    """Frames per second of the viewer orbiting a synthetic 50k-Gaussian model (SH degree 3)
+    on this machine's software WebGL; written to bench-results/web-viewer.json. The job's
+    .ply export is replaced by the synthetic one on disk (the last test of the module)."""
+    ply = service.data_dir / "jobs" / trained_job.id / "run" / "model.ply"
+    write_synthetic_ply(ply, n=50_000)
+    context, page, console = new_page(browser, service.url)
+    page.goto(f"/#/jobs/{trained_job.id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    assert "50,000" in page.text_content("#viewer-info")
+    size = page.evaluate("() => window.sparsesplat.view.size")
+    results: dict[str, Any] = {
+        "gaussians": 50_000, "canvas": size, "renderer": page.evaluate(
+            "() => window.sparsesplat.view.stats.renderer"), "runs": [],
+    }  # fmt: skip
+    page.check("#viewer-spin")
+    for budget in ("0", "5000"):
+        page.select_option("#viewer-motion", budget)
+        time.sleep(4)
+        frames0 = page.evaluate("() => window.sparsesplat.view.stats.frames")
+        cpu0, t0, load0 = _chromium_cpu_seconds(), time.monotonic(), os.getloadavg()[0]
+        time.sleep(12)
+        frames1 = page.evaluate("() => window.sparsesplat.view.stats.frames")
+        cpu1, t1, load1 = _chromium_cpu_seconds(), time.monotonic(), os.getloadavg()[0]
+        frames = frames1 - frames0
+        run = {
+            "splats_drawn_while_moving": int(budget) or 50_000,
+            "fps": round(frames / (t1 - t0), 2),
+            "chromium_cpu_s_per_frame": round((cpu1 - cpu0) / max(frames, 1), 3),
+            "load_average": round((load0 + load1) / 2, 1),
+        }
+        results["runs"].append(run)
+        assert frames > 0, "the viewer drew nothing while orbiting"
+    out = REPO / "bench-results" / "web-viewer.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+    print(json.dumps(results, indent=1))
+    console.assert_clean()
+    context.close()
