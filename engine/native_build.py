@@ -1,23 +1,42 @@
 """Compile-once, load-many for the engine's C++/OpenMP extensions (rasterizer, hash grid).
 
-Each extension is built by ``torch.utils.cpp_extension.load`` at first use into
-``$TORCH_EXTENSIONS_DIR`` (torch's default cache when unset); later processes reuse the build
-unless sources or flags change. One loader per extension keeps the built module and a lock, so
+Each extension is built by ``torch.utils.cpp_extension.load`` at first use and reused by later
+processes. The build directory is keyed by content: ``<name>_<key>`` under
+``$TORCH_EXTENSIONS_DIR`` (torch's default cache when unset), where ``key`` hashes the sources
+and headers, the compiler flags and what the binary depends on (torch and Python versions,
+machine, compiler). The sources are copied into that directory and compiled from there, so the
+build commands never mention the checkout's path: two checkouts of the same sources on one
+machine share one build, a checkout with different sources gets its own directory instead of
+rebuilding the other's (torch alone caches by name only, and its ninja rebuilds whenever the
+source paths in the command lines change), and any change to a source, header or flag gives a
+new key and so a fresh build. One loader per extension keeps the built module and a lock, so
 concurrent first calls in one process build it once.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import json
 import logging
 import os
+import platform
 import shutil
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
 log = logging.getLogger(__name__)
+
+HEADER_SUFFIXES = (".h", ".hpp")
+"""Files of the source folder that are hashed and staged besides the listed sources."""
+LDFLAGS = ("-fopenmp",)
+"""Linker flags of every extension."""
+KEY_LENGTH = 16
+"""Hex digits of the content hash in the build directory's name (64 bits)."""
 
 
 def _ensure_ninja_on_path() -> None:
@@ -25,6 +44,97 @@ def _ensure_ninja_on_path() -> None:
     if shutil.which("ninja") is None:
         bindir = str(Path(sys.executable).parent)
         os.environ["PATH"] = bindir + os.pathsep + os.environ.get("PATH", "")
+
+
+def staged_files(source_dir: Path, sources: Sequence[str]) -> list[str]:
+    """The files a build reads: the sources plus every header in ``source_dir`` (headers are
+    not parsed for includes; hashing them all can only rebuild too often, never too rarely)."""
+    headers = sorted(p.name for p in source_dir.iterdir() if p.suffix in HEADER_SUFFIXES)
+    return [*sources, *[h for h in headers if h not in sources]]
+
+
+def _toolchain() -> dict[str, str]:
+    """What the binary depends on besides the sources and flags."""
+    import torch
+
+    return {
+        "torch": str(torch.__version__),
+        "python": sys.implementation.cache_tag or platform.python_version(),
+        "machine": platform.machine(),
+        "cxx": os.environ.get("CXX", "c++"),
+    }
+
+
+def _cpu_model() -> str:
+    """The CPU's model and flags, for flags that target the build machine (-march=native)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags"))]
+        return "".join(sorted(set(lines)))
+    except OSError:
+        return platform.processor()
+
+
+def build_key(
+    source_dir: Path,
+    files: Sequence[str],
+    cflags: Sequence[str],
+    ldflags: Sequence[str] = LDFLAGS,
+    toolchain: dict[str, str] | None = None,
+) -> str:
+    """Content hash of a build: the bytes of ``files`` (relative to ``source_dir``, by name,
+    not by path), the flags, and the toolchain (``_toolchain()`` when None). Flags naming the
+    build machine's CPU (``-march=native``, ``-mtune=native``) add the CPU model and flags."""
+    h = hashlib.sha256()
+    for name in files:
+        data = (source_dir / name).read_bytes()
+        h.update(f"{name}\0{len(data)}\0".encode())
+        h.update(data)
+    extra = dict(_toolchain() if toolchain is None else toolchain)
+    if any("native" in flag for flag in cflags):
+        extra["cpu"] = _cpu_model()
+    h.update(json.dumps([list(cflags), list(ldflags), extra], sort_keys=True).encode())
+    return h.hexdigest()[:KEY_LENGTH]
+
+
+def extensions_root() -> Path:
+    """Where builds go: ``$TORCH_EXTENSIONS_DIR``, else torch's default cache folder (per
+    Python version and accelerator, as torch lays it out)."""
+    env = os.environ.get("TORCH_EXTENSIONS_DIR")
+    if env:
+        return Path(env)
+    import torch
+    from torch.utils import cpp_extension
+
+    accel = f"cu{torch.version.cuda.replace('.', '')}" if torch.version.cuda else "cpu"
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}{getattr(sys, 'abiflags', '')}"
+    return Path(cpp_extension.get_default_build_root()) / f"{tag}_{accel}"
+
+
+@contextlib.contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """An exclusive file lock across processes (staging the sources of one build)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def stage_sources(source_dir: Path, files: Sequence[str], dest: Path) -> None:
+    """Copy ``files`` into ``dest``, leaving a file alone when its bytes are already right (its
+    modification time is what ninja compares against the objects)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in files:
+        data = (source_dir / name).read_bytes()
+        target = dest / name
+        if target.is_file() and target.read_bytes() == data:
+            continue
+        tmp = dest / f".{name}.{os.getpid()}.tmp"
+        tmp.write_bytes(data)
+        os.replace(tmp, target)
 
 
 class NativeExtension:
@@ -40,18 +150,27 @@ class NativeExtension:
         failure_hint: str,
         description: str,
     ) -> None:
-        """``on_failure`` is the typed error raised (with the compiler's output tail) when the
+        """``name`` prefixes the module and build directory names (the content key follows
+        it); ``on_failure`` is the typed error raised (with the compiler's output tail) when the
         build fails; ``failure_hint`` is appended to its message; ``description`` names the
         extension in logs and errors."""
         self.name = name
         self.source_dir = source_dir
         self.sources = tuple(sources)
-        self.cflags = list(cflags)
+        self.cflags = tuple(cflags)
         self.on_failure = on_failure
         self.failure_hint = failure_hint
         self.description = description
         self._lock = threading.Lock()
         self._module: ModuleType | None = None
+
+    def files(self) -> list[str]:
+        """Sources and headers the build reads (see :func:`staged_files`)."""
+        return staged_files(self.source_dir, self.sources)
+
+    def build_name(self) -> str:
+        """Module and build-directory name: ``<name>_<content key>``."""
+        return f"{self.name}_{build_key(self.source_dir, self.files(), self.cflags)}"
 
     def load(self) -> ModuleType:
         """Return the compiled module, building it on first use."""
@@ -64,12 +183,19 @@ class NativeExtension:
             from torch.utils import cpp_extension
 
             try:
+                name = self.build_name()
+                build_dir = extensions_root() / name
+                src = build_dir / "src"
+                with _locked(build_dir / "stage.lock"):
+                    stage_sources(self.source_dir, self.files(), src)
+                # Copies: the builder appends its own flags to the lists it is given.
                 mod = cpp_extension.load(
-                    name=self.name,
-                    sources=[str(self.source_dir / f) for f in self.sources],
-                    extra_cflags=self.cflags,
-                    extra_ldflags=["-fopenmp"],
-                    extra_include_paths=[str(self.source_dir)],
+                    name=name,
+                    sources=[str(src / f) for f in self.sources],
+                    extra_cflags=list(self.cflags),
+                    extra_ldflags=list(LDFLAGS),
+                    extra_include_paths=[str(src)],
+                    build_directory=str(build_dir),
                     verbose=False,
                 )
             except Exception as exc:  # the builder raises RuntimeError/CalledProcessError/OSError
@@ -77,6 +203,6 @@ class NativeExtension:
                     f"building the {self.description} from {self.source_dir} failed "
                     f"({self.failure_hint}): {str(exc)[-4000:]}"
                 ) from exc
-            log.info("%s loaded: %s kernels", self.description, mod.variant())
+            log.info("%s loaded from %s: %s kernels", self.description, build_dir, mod.variant())
             self._module = mod
             return mod

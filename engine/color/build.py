@@ -2,10 +2,11 @@
 
 Same conventions as the rasterizer's loader (engine/raster/build.py): compiled by
 ``torch.utils.cpp_extension.load`` at first use into ``$TORCH_EXTENSIONS_DIR`` (torch's default
-cache when unset) and reused by later processes unless sources or flags change; the whole build
-targets x86-64-v3 (AVX2 + FMA) and the AVX-512 level kernels live in their own translation unit,
-called only when the CPU reports AVX-512 at run time. ``-ffp-contract=off`` keeps ``x * scale +
-0.5`` two roundings, as in the torch reference, so both pick the same grid cell at boundaries.
+cache when unset) in a directory keyed by a hash of the sources and flags, reused by later
+processes and other checkouts of the same sources; the whole build targets x86-64-v3 (AVX2 +
+FMA) and the AVX-512 level kernels live in their own translation unit, called only when the CPU
+reports AVX-512 at run time. ``-ffp-contract=off`` keeps ``x * scale + 0.5`` two roundings, as
+in the torch reference, so both pick the same grid cell at boundaries.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ SOURCE_DIR = Path(__file__).resolve().parent / "cpu"
 SOURCES = ("hashgrid.cpp", "sh.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp")
 """Translation units of the extension (headers: common.h, kernels.h)."""
 EXTENSION_NAME = "sparsesplat_hashgrid_cpu"
-"""Module name of the built extension (torch caches builds under this name)."""
+"""Prefix of the built module's and its build directory's names (``native_build`` appends a
+hash of the sources, headers and flags)."""
 CFLAGS = [
     "-O3",
     "-mavx2",

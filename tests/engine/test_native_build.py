@@ -1,0 +1,122 @@
+"""The native extensions' build cache is keyed by content, not by checkout or by name alone.
+
+Two checkouts on one machine used to rebuild each other's extensions (torch caches by name
+under $TORCH_EXTENSIONS_DIR, and ninja rebuilds when the source paths in its commands change).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sparsesplat.engine import native_build
+from sparsesplat.engine.color import build as color_build
+from sparsesplat.engine.errors import RasterError
+from sparsesplat.engine.native_build import NativeExtension, build_key, stage_sources
+from sparsesplat.engine.raster import build as raster_build
+
+TOOLCHAIN = {"torch": "2.13.0", "python": "cpython-311", "machine": "x86_64", "cxx": "c++"}
+
+
+def _tree(root: Path, files: dict[str, str]) -> Path:
+    root.mkdir(parents=True)
+    for name, text in files.items():
+        (root / name).write_text(text)
+    return root
+
+
+FILES = {"a.cpp": "int a() { return 1; }\n", "b.cpp": "int b();\n", "common.h": "#pragma once\n"}
+
+
+def test_same_sources_same_key_wherever_they_live(tmp_path: Path) -> None:
+    """Two checkouts of the same sources (different paths) share one key."""
+    one = _tree(tmp_path / "one" / "cpu", FILES)
+    two = _tree(tmp_path / "elsewhere" / "deeper" / "cpu", FILES)
+    files = native_build.staged_files(one, ["a.cpp", "b.cpp"])
+    assert files == ["a.cpp", "b.cpp", "common.h"]
+    key = build_key(one, files, ["-O3"], toolchain=TOOLCHAIN)
+    assert key == build_key(two, files, ["-O3"], toolchain=TOOLCHAIN)
+    assert len(key) == native_build.KEY_LENGTH and int(key, 16) >= 0
+
+
+@pytest.mark.parametrize(
+    "change",
+    ["source byte", "header", "new header", "cflags", "ldflags", "torch", "compiler"],
+)
+def test_any_change_gives_another_key(tmp_path: Path, change: str) -> None:
+    """A changed source, header or flag, or another torch or compiler, builds afresh."""
+    src = _tree(tmp_path / "cpu", FILES)
+    cflags, ldflags, toolchain = ["-O3"], ["-fopenmp"], dict(TOOLCHAIN)
+
+    def key() -> str:
+        files = native_build.staged_files(src, ["a.cpp", "b.cpp"])
+        return build_key(src, files, cflags, ldflags, toolchain)
+
+    before = key()
+    if change == "source byte":
+        (src / "a.cpp").write_text(FILES["a.cpp"].replace("1", "2"))
+    elif change == "header":
+        (src / "common.h").write_text("#pragma once\n#define X 1\n")
+    elif change == "new header":
+        (src / "extra.h").write_text("\n")
+    elif change == "cflags":
+        cflags.append("-ffp-contract=off")
+    elif change == "ldflags":
+        ldflags.append("-lm")
+    elif change == "torch":
+        toolchain["torch"] = "2.14.0"
+    else:
+        toolchain["cxx"] = "clang++"
+    assert key() != before, change
+
+
+def test_native_cpu_flags_key_on_the_cpu(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A build for the build machine's CPU (-march=native) is keyed by that CPU too."""
+    src = _tree(tmp_path / "cpu", FILES)
+    monkeypatch.setattr(native_build, "_cpu_model", lambda: "cpu A")
+    a = build_key(src, ["a.cpp"], ["-march=native"], toolchain=TOOLCHAIN)
+    portable = build_key(src, ["a.cpp"], ["-mavx2"], toolchain=TOOLCHAIN)
+    monkeypatch.setattr(native_build, "_cpu_model", lambda: "cpu B")
+    assert build_key(src, ["a.cpp"], ["-march=native"], toolchain=TOOLCHAIN) != a
+    assert build_key(src, ["a.cpp"], ["-mavx2"], toolchain=TOOLCHAIN) == portable
+
+
+def test_staging_leaves_unchanged_files_alone(tmp_path: Path) -> None:
+    """Re-staging identical sources keeps their modification times (ninja would rebuild)."""
+    src = _tree(tmp_path / "cpu", FILES)
+    dest = tmp_path / "build" / "src"
+    stage_sources(src, list(FILES), dest)
+    old = dest / "a.cpp"
+    os.utime(old, (1_000_000, 1_000_000))
+    stage_sources(src, list(FILES), dest)
+    assert old.stat().st_mtime == 1_000_000
+    (src / "b.cpp").write_text("int b() { return 2; }\n")
+    stage_sources(src, list(FILES), dest)
+    assert (dest / "b.cpp").read_text() == "int b() { return 2; }\n"
+    assert sorted(p.name for p in dest.iterdir()) == sorted(FILES)
+
+
+@pytest.mark.parametrize(
+    "ext", [raster_build._EXTENSION, raster_build._PROJECTION, color_build._EXTENSION]
+)
+def test_a_second_checkout_reuses_the_build(ext: NativeExtension, tmp_path: Path) -> None:
+    """A copy of the real sources elsewhere (a second clone) maps to the same build directory,
+    and loading it there reuses the compiled module: nothing is rebuilt."""
+    built = ext.load()
+    library = Path(str(built.__file__))
+    mtime = library.stat().st_mtime_ns
+    copy = tmp_path / "clone" / "cpu"
+    shutil.copytree(ext.source_dir, copy)
+    twin = NativeExtension(ext.name, copy, ext.sources, ext.cflags, RasterError, "", "twin")
+    assert twin.build_name() == ext.build_name()
+    assert library.parent == native_build.extensions_root() / ext.build_name()
+    loaded = twin.load()
+    assert Path(str(loaded.__file__)) == library
+    assert library.stat().st_mtime_ns == mtime, "the second checkout rebuilt the extension"
+    # A changed source in the copy is another build (not run here: it would compile).
+    with open(copy / ext.sources[0], "a") as f:
+        f.write("\n// changed\n")
+    assert twin.build_name() != ext.build_name()
