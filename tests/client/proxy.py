@@ -16,6 +16,8 @@ class CuttingProxy:
         self.cut_after = cut_after
         self.cuts_left = cuts
         self.connections = 0
+        self.cut = 0
+        """Connections cut so far."""
         self._listener = socket.socket()
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._listener.bind(("127.0.0.1", 0))
@@ -44,8 +46,7 @@ class CuttingProxy:
             threading.Thread(target=self._pump, args=(client, upstream, None), daemon=True).start()
             threading.Thread(target=self._pump, args=(upstream, client, limit), daemon=True).start()
 
-    @staticmethod
-    def _pump(src: socket.socket, dst: socket.socket, limit: int | None) -> None:
+    def _pump(self, src: socket.socket, dst: socket.socket, limit: int | None) -> None:
         sent = 0
         try:
             while True:
@@ -54,6 +55,7 @@ class CuttingProxy:
                     break
                 if limit is not None and sent + len(data) >= limit:
                     dst.sendall(data[: max(0, limit - sent)])
+                    self.cut += 1
                     break
                 dst.sendall(data)
                 sent += len(data)
