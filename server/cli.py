@@ -7,6 +7,9 @@ import os
 import subprocess
 import sys
 
+SHUTDOWN_GRACE_S = 5
+"""Seconds open connections (event streams) get to finish when the server stops."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options override the matching ``SPARSESPLAT_*`` settings."""
@@ -64,9 +67,11 @@ def run(args: argparse.Namespace) -> int:
             env={**os.environ, **settings.environment()},
         )
     try:
+        # Event streams stay open until their job ends: on shutdown, give them a few seconds to
+        # finish (clients resume with ?after=) instead of waiting for every job to complete.
         uvicorn.run(
             create_app(settings), host=settings.host, port=settings.port, log_config=None,
-            access_log=True,
+            access_log=True, timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
         )  # fmt: skip
     finally:
         if workers is not None:
