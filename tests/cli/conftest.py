@@ -25,9 +25,10 @@ SMOKE = [
 
 
 def run_cli(
-    *args: str, env: dict[str, str] | None = None, timeout: float = 300
+    *args: str, env: dict[str, str] | None = None, timeout: float = 900
 ) -> subprocess.CompletedProcess[str]:
-    """``python -m sparsesplat ARGS`` from the repository root; stdout/stderr captured."""
+    """``python -m sparsesplat ARGS`` from the repository root; stdout/stderr captured. The
+    timeout is generous: a first run after an engine update rebuilds the native extensions."""
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "sparsesplat", *args],
