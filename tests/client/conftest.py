@@ -3,6 +3,7 @@ trained on the shared mic scene that every test reuses."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -42,19 +43,60 @@ class Server:
     log: Path
 
     def stop(self) -> None:
-        """Stop it (workers included)."""
-        # A following SIGINT makes uvicorn stop waiting for open connections: an abandoned
-        # event stream keeps its handler alive (it polls the database and never reads).
+        """Stop it, then any of its worker processes still alive (by their ids)."""
+        family = _descendants(self.process.pid)
+        # SIGTERM first; a following SIGINT makes uvicorn stop waiting for open connections.
         for sig in (signal.SIGTERM, signal.SIGINT):
             if self.process.poll() is None:
                 self.process.send_signal(sig)
                 try:
-                    self.process.wait(timeout=5)
+                    self.process.wait(timeout=20)
                 except subprocess.TimeoutExpired:
                     continue
         if self.process.poll() is None:
             self.process.kill()
             self.process.wait()
+        _end(family)
+
+
+def _descendants(pid: int) -> list[int]:
+    """Ids of every process below ``pid`` (Linux /proc; empty elsewhere)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    out, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def _end(pids: list[int], grace_s: float = 15.0) -> None:
+    """SIGTERM the processes ``pids`` that are still alive, SIGKILL them after ``grace_s``."""
+
+    def alive(pid: int) -> bool:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            return False
+        return state != "Z"
+
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        left = [p for p in pids if alive(p)]
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
+        deadline = time.monotonic() + grace_s
+        while left and time.monotonic() < deadline:
+            time.sleep(0.2)
+            left = [p for p in left if alive(p)]
+        if not left:
+            return
 
 
 def start_server(tmp: Path, ready: bool = True, **env: str) -> Server:
