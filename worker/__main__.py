@@ -1,16 +1,20 @@
 """``python -m sparsesplat.worker train|render|supervise``: one worker process.
 
 ``sparsesplat serve`` and ``sparsesplat worker`` start these; settings come from the
-``SPARSESPLAT_*`` environment like everything else.
+``SPARSESPLAT_*`` environment like everything else. ``train`` is a polling training worker
+with the embedded queue (``queue=local``) and a Celery node consuming the training queue with
+``queue=celery`` (``--concurrency`` pool processes, one job each at a time).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import socket
 import sys
 
 from sparsesplat.api.logs import configure_logging
-from sparsesplat.api.settings import load_settings
+from sparsesplat.api.settings import QueueBackend, Settings, load_settings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -19,9 +23,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("kind", choices=["train", "render", "supervise"])
     parser.add_argument("--train", type=int, default=None, help="training workers (supervise)")
     parser.add_argument("--render", type=int, default=None, help="render workers (supervise)")
+    parser.add_argument(
+        "--concurrency", type=int, default=1, help="pool processes of a Celery node (train)"
+    )
     args = parser.parse_args(argv)
     settings = load_settings()
     configure_logging(settings.log_level, json_lines=settings.log_json)
+    if args.kind == "train" and settings.queue == QueueBackend.celery:
+        return run_celery_node(settings, args.concurrency)
     if args.kind == "train":
         from sparsesplat.worker.training import TrainingWorker
 
@@ -37,6 +46,30 @@ def main(argv: list[str] | None = None) -> int:
     train = settings.workers if args.train is None else args.train
     render = settings.render_workers if args.render is None else args.render
     return Supervisor(train, render).run()
+
+
+def run_celery_node(settings: Settings, concurrency: int = 1) -> int:
+    """A Celery worker node on the training queue until SIGTERM (warm shutdown: a running job
+    checkpoints and goes back to the queue)."""
+    from sparsesplat.api.store.broker import TRAIN_QUEUE
+    from sparsesplat.worker.celery_app import app
+
+    app.worker_main(
+        [
+            "worker",
+            f"--queues={TRAIN_QUEUE}",
+            f"--concurrency={max(1, concurrency)}",
+            "--prefetch-multiplier=1",
+            "--max-tasks-per-child=1",
+            "--pool=prefork",
+            "-O", "fair",
+            f"--hostname=train-{os.getpid()}@{socket.gethostname()}",
+            f"--loglevel={settings.log_level}",
+            "--without-mingle",
+            "--without-gossip",
+        ]
+    )  # fmt: skip
+    return 0
 
 
 if __name__ == "__main__":

@@ -1,4 +1,10 @@
-"""``sparsesplat worker``: run worker processes without the API (a second machine, compose)."""
+"""``sparsesplat worker``: run worker processes without the API (a second machine, compose).
+
+With ``SPARSESPLAT_QUEUE=celery`` each training worker is a Celery node on the training queue
+(a second machine needs only the database and broker URLs and the shared data directory).
+Render workers listen on loopback for the API on their own machine, so with Celery they run
+only when asked for (``--render N`` on the API's machine; ``sparsesplat serve`` starts them).
+"""
 
 from __future__ import annotations
 
@@ -8,13 +14,17 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options override the matching ``SPARSESPLAT_*`` settings."""
     parser.add_argument("--train", type=int, help="training workers (SPARSESPLAT_WORKERS)")
-    parser.add_argument("--render", type=int, help="render workers (SPARSESPLAT_RENDER_WORKERS)")
+    parser.add_argument(
+        "--render", type=int,
+        help="render workers (SPARSESPLAT_RENDER_WORKERS; with SPARSESPLAT_QUEUE=celery the "
+        "default is 0: they serve the API on their own machine only)",
+    )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
     """Migrate the database if needed, then supervise the workers until interrupted."""
     from sparsesplat.api.logs import configure_logging
-    from sparsesplat.api.settings import load_settings
+    from sparsesplat.api.settings import QueueBackend, load_settings
     from sparsesplat.api.store.database import make_engine, migrate
     from sparsesplat.worker.supervisor import Supervisor
 
@@ -24,4 +34,6 @@ def run(args: argparse.Namespace) -> int:
     migrate(make_engine(settings.database_url))
     train = settings.workers if args.train is None else args.train
     render = settings.render_workers if args.render is None else args.render
+    if args.render is None and settings.queue == QueueBackend.celery:
+        render = 0
     return Supervisor(train, render).run()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
 import threading
 import time
 import zipfile
@@ -170,9 +171,15 @@ def serve_renders(settings: Settings, host: str = "127.0.0.1", port: int = 0) ->
     worker_id = new_worker_id("render")
     registry.register(worker_id, "render", address)
 
+    parent = os.getppid()
+
     def beat() -> None:
         while True:
             time.sleep(settings.heartbeat_s)
+            if os.getppid() != parent:  # the supervisor died: do not linger as an orphan
+                log.warning("parent process gone; stopping")
+                server.shutdown()
+                return
             try:
                 registry.beat(worker_id)
             except Exception:

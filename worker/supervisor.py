@@ -64,7 +64,11 @@ class Supervisor:
         """Supervise until SIGTERM/SIGINT; returns 0."""
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
+        parent = os.getppid()
         while not self._stopping:
+            if os.getppid() != parent:  # whoever started us is gone: do not linger as orphans
+                log.warning("parent process gone; stopping the workers")
+                break
             now = time.monotonic()
             for slot in self.slots:
                 self._tend(slot, now)

@@ -7,6 +7,7 @@ and SIGINT stop it gracefully: a running job checkpoints and goes back to the qu
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import threading
 from types import FrameType
@@ -51,8 +52,12 @@ class TrainingWorker:
         self.registry.register(self.worker_id, "train")
         log.info("training worker ready", extra={"worker": self.worker_id})
         done = 0
+        parent = os.getppid()
         try:
             while not self._stop.is_set() and (max_jobs is None or done < max_jobs):
+                if os.getppid() != parent:  # the supervisor died: do not linger as an orphan
+                    log.warning("parent process gone; stopping")
+                    break
                 self.registry.beat(self.worker_id)
                 claim = self.store.claim(self.worker_id, self.settings.lease_s)
                 if claim is None:

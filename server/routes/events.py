@@ -40,6 +40,9 @@ async def job_events(
     header = websocket.headers.get("authorization")
     if header is None and access_token:
         header = f"Bearer {access_token}"
+    # Accept before refusing: a close before the handshake reaches clients as a bare HTTP 403,
+    # and the close code (which says why) would be lost.
+    await websocket.accept()
     try:
         owner = await asyncio.to_thread(authenticator.owner, header)
     except Unauthenticated as exc:
@@ -49,10 +52,33 @@ async def job_events(
     if job is None:
         await websocket.close(code=CLOSE_NOT_FOUND, reason=f"no job {job_id!r}")
         return
-    await websocket.accept()
+    # The client never sends anything; reading anyway is how a dropped connection is noticed
+    # on a quiet job (otherwise the stream would poll the database until the job ends).
+    gone = asyncio.create_task(_until_disconnect(websocket))
+    try:
+        await _stream(websocket, service, job_id, owner, after, gone)
+    finally:
+        gone.cancel()
+
+
+async def _until_disconnect(websocket: WebSocket) -> None:
+    while True:
+        message = await websocket.receive()
+        if message["type"] == "websocket.disconnect":
+            return
+
+
+async def _stream(
+    websocket: WebSocket,
+    service: ServiceState,
+    job_id: str,
+    owner: str,
+    after: int,
+    gone: asyncio.Task[None],
+) -> None:
     last = after
     try:
-        while True:
+        while not gone.done():
             events = await asyncio.to_thread(service.jobs.events_after, job_id, last)
             for event in events:
                 await websocket.send_text(event.model_dump_json())
@@ -73,6 +99,6 @@ async def job_events(
                 ):
                     await websocket.close()
                     return
-                await asyncio.sleep(POLL_S)
+                await asyncio.wait([gone], timeout=POLL_S)
     except WebSocketDisconnect:
         return
