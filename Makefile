@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint pytest venv clean bench-raster bench-quality bench-iteration bench-service
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-service
 
 venv: $(VENV)/.installed
 
@@ -33,11 +33,17 @@ typecheck: venv
 dockerlint: venv
 	$(VENV)/bin/hadolint docker/Dockerfile.cpu docker/Dockerfile.cuda
 
+# The compose file against the Compose Specification's JSON schema (check-jsonschema ships it;
+# no Docker engine runs here). tests/distributed/test_compose.py checks its commands and
+# settings against the real CLI and Settings.
+composelint: venv
+	$(VENV)/bin/check-jsonschema --builtin-schema vendor.compose-spec docker/compose.yaml
+
 # pytest exits 5 when a selection collects no test: not a failure of the code.
 pytest: venv
 	$(PY) -m pytest; status=$$?; if [ $$status -eq 5 ]; then exit 0; fi; exit $$status
 
-test: lint typecheck dockerlint pytest
+test: lint typecheck dockerlint composelint pytest
 
 bench-raster: venv
 	$(PY) -m sparsesplat.engine.bench.raster $(BENCH_ARGS)

@@ -9,9 +9,13 @@ with the embedded queue (``queue=local``) and a Celery node consuming the traini
 from __future__ import annotations
 
 import argparse
+import logging
 import os
+import signal
 import socket
 import sys
+import threading
+import time
 
 from sparsesplat.api.logs import configure_logging
 from sparsesplat.api.settings import QueueBackend, Settings, load_settings
@@ -54,6 +58,16 @@ def run_celery_node(settings: Settings, concurrency: int = 1) -> int:
     from sparsesplat.api.store.broker import TRAIN_QUEUE
     from sparsesplat.worker.celery_app import app
 
+    parent = os.getppid()
+
+    def watch_parent() -> None:  # the supervisor died: warm shutdown, do not linger as an orphan
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        logging.getLogger("sparsesplat.worker").warning("parent process gone; stopping")
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    # Started before the pool forks: a thread does not survive into the forked children.
+    threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
     app.worker_main(
         [
             "worker",

@@ -260,6 +260,34 @@ class JobStore:
             self._append(conn, row.id, "state", {"state": "running", "message": message})
         return Claim(row.id, dict(row.spec), attempt)
 
+    def claim_job(self, job_id: str, worker_id: str, lease_s: float) -> Claim | None:
+        """Take ``job_id`` itself (a broker delivered its id) if it is queued, else None.
+
+        None means the job runs under another worker, has ended, was cancelled or deleted: a
+        duplicate or late message is dropped here, so delivering one twice never runs a job
+        twice. One conditional UPDATE: of two workers racing for the job, exactly one wins
+        (on PostgreSQL the loser waits for the winner's commit, then matches no row)."""
+        now = time.time()
+        with self.engine.begin() as conn:
+            row = conn.execute(
+                jobs.update()
+                .where(jobs.c.id == job_id, jobs.c.state == JobState.queued.value)
+                .values(
+                    state=JobState.running.value,
+                    worker_id=worker_id,
+                    lease_until=now + lease_s,
+                    attempts=jobs.c.attempts + 1,
+                    started_at=sa.func.coalesce(jobs.c.started_at, now),
+                )
+                .returning(jobs.c.spec, jobs.c.attempts)
+            ).first()
+            if row is None:
+                return None
+            attempt = int(row.attempts)
+            message = "started" if attempt == 1 else f"resumed (attempt {attempt})"
+            self._append(conn, job_id, "state", {"state": "running", "message": message})
+        return Claim(job_id, dict(row.spec), attempt)
+
     def heartbeat(
         self, job_id: str, worker_id: str, lease_s: float, progress: Progress | None = None
     ) -> tuple[bool, bool]:
