@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import secrets
 
 import numpy as np
 import pytest
@@ -62,8 +61,7 @@ def test_ssim_matches_skimage_convention() -> None:
     assert ssim(img, other) < 1.0
 
 
-def test_blur_scores_worse_than_light_noise(lpips_net: LPIPS) -> None:
-    seed = secrets.randbits(31)
+def test_blur_scores_worse_than_light_noise(lpips_net: LPIPS, seed: int) -> None:
     img = fixed_photo(96, 128)
     light = noisy(img, 2.0 / 255, seed)
     blurred = blur(img, 3.0)
@@ -85,7 +83,10 @@ def test_fixed_pair_gives_fixed_numbers(lpips_net: LPIPS) -> None:
     assert lpips_net.distance(other, img) == pytest.approx(FIXED["lpips"], abs=1e-4)
 
 
-# Regression values (CPU, torch 2.13, scikit-image SSIM, LPIPS-VGG with [0, 1] inputs).
+# Regression values (CPU, torch 2.13, scikit-image SSIM, LPIPS-VGG with [0, 1] inputs). PSNR and
+# SSIM are float64; LPIPS is float32, and its float32 value differs from the same network run in
+# float64 by ~1e-8 here (2.5e-8 from the figure below): the tolerances are 400x that, and a
+# change of the metric's definition (weights, input range, layers) moves it by >1e-3.
 FIXED = {"psnr": 26.559178, "ssim": 0.9556712, "lpips": 0.1948225}
 
 

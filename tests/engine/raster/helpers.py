@@ -28,6 +28,7 @@ from sparsesplat.engine.raster.reference import (
     rasterize_reference,
 )
 from tests.engine.numerics import (
+    DECISION_SAFETY,
     FLOOR_ULPS,
     UNIT_ROUNDOFF,
     Float32Comparison,
@@ -81,8 +82,6 @@ def camera(width: int = 40, height: int = 30, fx: float = 40.0, fy: float | None
 
 NEAR, FAR, EPS2D = 0.01, 1e10, 0.3
 """rasterize()'s defaults for the depth range and the 2D dilation."""
-DECISION_SAFETY = 16.0
-"""The window around a threshold spans this many times float32's error of its inputs."""
 AMBIGUOUS_SHARE = 0.05
 """At most this share of a test image's pixels may be left out as ambiguous (else the test
 would test nothing; a typical scene has a few per thousand)."""
@@ -102,8 +101,8 @@ def _projected(gs: Gaussians, cam: Camera, dtype: torch.dtype, near: float, far:
                eps2d: float) -> Projected:  # fmt: skip
     """``project()`` of the first four tensors in ``dtype``, without autograd."""
     with torch.no_grad():
-        ps = [t.detach().to(dtype) for t in gs.tensors()[:4]]
-        return project(*ps, cam, near, far, eps2d)
+        m, s, q, o = (t.detach().to(dtype) for t in gs.tensors()[:4])
+        return project(m, s, q, o, cam, near, far, eps2d)
 
 
 def _error_bound(p32: Tensor, p64: Tensor, terms: Tensor, floor_ulps: float = FLOOR_ULPS) -> Tensor:
@@ -227,7 +226,7 @@ def decision_windows(
 
 def render_with_grads(
     gs: Gaussians, cam: Camera, backend: str, seed: int, background: Tensor | None = None,
-    skip: Tensor | None = None, **kwargs: object,
+    skip: Tensor | None = None, near: float = NEAR, far: float = FAR, eps2d: float = EPS2D,
 ) -> tuple[RasterOutput, list[Tensor | None]]:  # fmt: skip
     """Render, back-propagate a seeded random linear loss of image, depth and alpha.
 
@@ -240,18 +239,15 @@ def render_with_grads(
     dtype = torch.float64 if backend == "reference" else torch.float32
     device = "cuda" if backend == "cuda" else "cpu"
     leaves = [t.detach().to(dtype).clone().requires_grad_(True) for t in gs.tensors()]
-    params = [t.to(device) for t in leaves]
+    m, s, q, o, f = (t.to(device) for t in leaves)
     if backend == "reference32":
-        c = gs.features.shape[1]
-        bg = torch.zeros(c) if background is None else background.float()
-        near, far = float(kwargs.get("near", NEAR)), float(kwargs.get("far", FAR))  # type: ignore[arg-type]
-        eps2d = float(kwargs.get("eps2d", EPS2D))  # type: ignore[arg-type]
-        out = rasterize_reference(*params, cam, bg, near, far, eps2d, dtype=torch.float32)
+        bg32 = torch.zeros(f.shape[1]) if background is None else background.float()
+        out = rasterize_reference(m, s, q, o, f, cam, bg32, near, far, eps2d, dtype=torch.float32)
     else:
         bg = None if background is None else background.to(device, dtype)
-        out = rasterize(*params, cam.to(device), background=bg, backend=backend, **kwargs)  # type: ignore[arg-type]
+        out = rasterize(m, s, q, o, f, cam.to(device), bg, near, far, eps2d, backend)
     if device != "cpu":
-        out = RasterOutput(*(t.cpu() for t in (out.image, out.depth, out.alpha, out.radii)),
+        out = RasterOutput(out.image.cpu(), out.depth.cpu(), out.alpha.cpu(), out.radii.cpu(),
                            out.means2d)  # fmt: skip
     g = torch.Generator().manual_seed(seed + 7)
     keep = 1.0 if skip is None else (~skip).to(dtype)
@@ -308,7 +304,8 @@ class ReferenceComparison:
 def compare_with_reference(
     gs: Gaussians, cam: Camera, seed: int, what: str, background: Tensor | None = None,
     draws: int = 1, perturb: tuple[str, int, float] | None = None,
-    max_ambiguous: float = AMBIGUOUS_SHARE, backend: str = "cpu", **kwargs: object,
+    max_ambiguous: float = AMBIGUOUS_SHARE, backend: str = "cpu", near: float = NEAR,
+    far: float = FAR, eps2d: float = EPS2D,
 ) -> ReferenceComparison:  # fmt: skip
     """Render with the native kernel (or gsplat: ``backend="cuda"``), the float64 reference and
     torch's float32 run of the reference; measure each output and gradient under the float32
@@ -319,8 +316,6 @@ def compare_with_reference(
     error to be a stable scale. ``perturb = (name, flat_index, relative)`` multiplies one entry
     of one kernel output or gradient (first draw) by ``1 + relative``: tests of the check itself.
     """
-    near, far = float(kwargs.get("near", NEAR)), float(kwargs.get("far", FAR))  # type: ignore[arg-type]
-    eps2d = float(kwargs.get("eps2d", EPS2D))  # type: ignore[arg-type]
     msg = f"{what} (seed {seed})"
     pooled: dict[str, list[list[Tensor]]] = {}
     terms: dict[str, float | None] = {}
@@ -331,11 +326,12 @@ def compare_with_reference(
         skip = windows.pixels
         share = float(skip.double().mean()) if skip.numel() else 0.0
         assert share <= max_ambiguous, f"{msg}: {share:.1%} of the pixels sit at a threshold"
-        out, grads = render_with_grads(scene, cam, backend, seed, background, skip, **kwargs)
+        ranges = {"near": near, "far": far, "eps2d": eps2d}
+        out, grads = render_with_grads(scene, cam, backend, seed, background, skip, **ranges)
         ref, ref_grads = render_with_grads(scene, cam, "reference", seed, background, skip,
-                                           **kwargs)  # fmt: skip
+                                           **ranges)  # fmt: skip
         r32, grads32 = render_with_grads(scene, cam, "reference32", seed, background, skip,
-                                         **kwargs)  # fmt: skip
+                                         **ranges)  # fmt: skip
         assert_finite(out, grads, f"{msg} (cpu)")
         assert_finite(ref, ref_grads, f"{msg} (reference)")
         if first is None:
@@ -368,13 +364,14 @@ def compare_with_reference(
 
 def assert_matches_reference(
     gs: Gaussians, cam: Camera, seed: int, what: str, background: Tensor | None = None,
-    draws: int = 1, max_ambiguous: float = AMBIGUOUS_SHARE, **kwargs: object,
+    draws: int = 1, max_ambiguous: float = AMBIGUOUS_SHARE, near: float = NEAR, far: float = FAR,
+    eps2d: float = EPS2D,
 ) -> tuple[RasterOutput, list[Tensor | None]]:  # fmt: skip
     """The native kernel agrees with the float64 reference under the float32 rule
     (:func:`compare_with_reference`); culling agrees except for Gaussians at a culling
     threshold; radii agree to a pixel (a ceil). Returns the kernel's outputs and gradients."""
     res = compare_with_reference(gs, cam, seed, what, background, draws, None, max_ambiguous,
-                                 **kwargs)  # fmt: skip
+                                 near=near, far=far, eps2d=eps2d)  # fmt: skip
     for result in res.comparisons:
         assert result.passed, result.message()
     msg = f"{what} (seed {seed})"

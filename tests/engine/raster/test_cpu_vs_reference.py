@@ -137,9 +137,9 @@ def test_opacity_only_backward_matches_reference(channels: int, seed: int) -> No
     weights = [torch.rand(channels, 33, 41, generator=gen), torch.rand(1, 33, 41, generator=gen)]
 
     def grads(geometry: bool, backend: str, dtype: torch.dtype) -> list[torch.Tensor]:
-        means = gs.means.to(dtype).requires_grad_(geometry)
-        logits = gs.opacity_logits.to(dtype).requires_grad_(True)
-        feats = gs.features.to(dtype).requires_grad_(channels > 0)
+        means = gs.means.to(dtype).clone().requires_grad_(geometry)
+        logits = gs.opacity_logits.to(dtype).clone().requires_grad_(True)
+        feats = gs.features.to(dtype).clone().requires_grad_(channels > 0)
         others = (gs.log_scales.to(dtype), gs.quats.to(dtype))
         if backend == "reference32":
             from sparsesplat.engine.raster.reference import rasterize_reference

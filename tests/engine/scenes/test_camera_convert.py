@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import secrets
-
 import numpy as np
 import pytest
 import torch
@@ -47,8 +45,8 @@ def random_camera(rng: np.random.Generator) -> Camera:
 
 
 @pytest.fixture
-def rng() -> tuple[np.random.Generator, int]:
-    seed = secrets.randbits(32)
+def rng(seed: int) -> tuple[np.random.Generator, int]:
+    """A numpy generator from the test's seed (tests/conftest.py), and the seed."""
     return np.random.default_rng(seed), seed
 
 

@@ -44,8 +44,7 @@ def _params(t: Trainer) -> dict[str, torch.Tensor]:
     return out
 
 
-def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path) -> None:
-    seed = random.randrange(1000)
+def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path, seed: int) -> None:
     scene, priors = make_scene(seed=seed)
     events: list[Any] = []
     rows_on_disk: list[int] = []
@@ -78,8 +77,7 @@ def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path) -> None:
     assert len(model) == result.n_gaussians
 
 
-def test_resume_matches_uninterrupted_run(tmp_path: Path) -> None:
-    seed = random.randrange(1000)
+def test_resume_matches_uninterrupted_run(tmp_path: Path, seed: int) -> None:
     scene, priors = make_scene(seed=seed)
     # One thread: torch's multi-threaded CPU kernels are not bit-reproducible run to run.
     cfg = small(iterations=30, eval_every=5, seed=seed, densify_from=5, densify_interval=5,
@@ -147,8 +145,7 @@ def test_constant_depth_priors(where: str) -> None:
     assert math.isfinite(res.metrics["psnr"]) and res.n_gaussians > 0
 
 
-def test_scene_scale_does_not_change_quality() -> None:
-    seed = random.randrange(1000)
+def test_scene_scale_does_not_change_quality(seed: int) -> None:
     psnrs = {}
     for scale in (1.0, 1e-3, 1e3):
         scene, priors = make_scene(seed=seed, scale=scale)
@@ -157,13 +154,14 @@ def test_scene_scale_does_not_change_quality() -> None:
     assert spread < 0.5, f"seed {seed}: PSNR by scale {psnrs}"
 
 
-def test_two_trainers_in_one_process_do_not_interfere() -> None:
+def test_two_trainers_in_one_process_do_not_interfere(seed: int) -> None:
     scene, priors = make_scene(seed=5)
     cfg = small(iterations=12, eval_every=None, threads=1)
     torch.set_num_threads(1)  # bit-exact comparison (the fixture restores the thread count)
     a, b = Trainer(scene, cfg, priors), Trainer(scene, cfg, priors)
+    rng = random.Random(seed)
     for _ in range(12):  # interleaved steps, global RNG disturbed in between
-        torch.manual_seed(random.randrange(1 << 30))
+        torch.manual_seed(rng.randrange(1 << 30))
         for t in (a, b):
             t.iteration += 1
             t._step()
@@ -192,8 +190,7 @@ def test_missing_priors_is_a_scene_error() -> None:
         Trainer(scene, small(), [torch.zeros(5, 5)] * 3)
 
 
-def test_empty_background_pixels_get_the_nearest_prior_value() -> None:
-    seed = random.randrange(1000)
+def test_empty_background_pixels_get_the_nearest_prior_value(seed: int) -> None:
     scene, priors = make_scene(seed=seed, background=1.0)
     on = Trainer(scene, small(background=(1.0, 1.0, 1.0), depth_empty_background=True), priors)
     off = Trainer(scene, small(background=(1.0, 1.0, 1.0)), priors)
@@ -212,8 +209,8 @@ def test_empty_background_pixels_get_the_nearest_prior_value() -> None:
     )
 
 
-def test_interim_evaluation_samples_evenly_spaced_views() -> None:
-    scene, priors = make_scene(seed=random.randrange(1000), n_test=5)
+def test_interim_evaluation_samples_evenly_spaced_views(seed: int) -> None:
+    scene, priors = make_scene(seed=seed, n_test=5)
     trainer = Trainer(scene, small(), priors)
     subset = dataclasses.replace(scene, test=[scene.test[0], scene.test[2], scene.test[4]])
     same_model = Trainer(subset, small(), priors)
