@@ -38,7 +38,10 @@ export function fmtSeconds(seconds) {
 export function fmtTime(iso) {
   if (!iso) return "–";
   const d = new Date(iso);
-  return d.toLocaleString(undefined, { dateStyle: "short", timeStyle: "medium" });
+  const today = d.toDateString() === new Date().toDateString();
+  return today
+    ? d.toLocaleTimeString(undefined, { timeStyle: "medium" })
+    : d.toLocaleString(undefined, { dateStyle: "short", timeStyle: "short" });
 }
 
 export function fmtBytes(n) {

@@ -18,16 +18,17 @@ const MAX_HEIGHT = 600;
 const PRE_BLUR = 0.3;
 
 const BACKGROUNDS = { white: 0xffffff, black: 0x000000, grey: 0x808080 };
-/** Splats drawn while the camera moves on a software WebGL renderer (SwiftShader, llvmpipe):
- * their cost grows with the splat count, so motion uses Spark's level-of-detail tree and the
- * full model is drawn once the camera stops. Hardware renderers draw every splat always. */
-const SOFTWARE_MOTION_SPLATS = 5000;
-const MOTION_OPTIONS = [0, 50000, 20000, 10000, 5000, 2000];
-/** Milliseconds after the last camera change before the still view is drawn in full. */
+/** Most splats drawn per frame on a software WebGL renderer (SwiftShader, llvmpipe), whose
+ * cost per frame grows with the splat count (about 25-40 µs of CPU per splat here): Spark's
+ * level-of-detail tree picks which (merged splats far away, the originals close up). Hardware
+ * renderers draw every splat. A choice in the page; changing it takes a few frames to settle. */
+const SOFTWARE_SPLATS = 5000;
+const DETAIL_OPTIONS = [0, 50000, 20000, 10000, 5000, 2000];
+/** The "every splat" budget: more than any model here, so every splat of at least a pixel is
+ * drawn. */
+const ALL_SPLATS = 20_000_000;
+/** Milliseconds after the last camera change before the view counts as still (snapshots). */
 const SETTLE_MS = 250;
-/** Level-of-detail budget of the still view: more than any model here, so every splat of at
- * least a pixel is drawn. */
-const STILL_SPLATS = 20_000_000;
 
 function isSoftwareRenderer(renderer) {
   const gl = renderer.getContext();
@@ -81,10 +82,10 @@ export function mount(container, { jobId }) {
   const renderButton = el("button#viewer-render", { type: "button", disabled: true }, "Render this view on the server");
   const spin = el("input#viewer-spin", { type: "checkbox" });
   const showFrusta = el("input#viewer-frusta", { type: "checkbox", checked: true });
-  const motion = el(
-    "select#viewer-motion",
+  const detail = el(
+    "select#viewer-detail",
     {},
-    MOTION_OPTIONS.map((n) => el("option", { value: String(n) }, n ? `${n.toLocaleString()} splats` : "all splats")),
+    DETAIL_OPTIONS.map((n) => el("option", { value: String(n) }, n ? `at most ${n.toLocaleString()} splats` : "every splat")),
   );
   const background = el(
     "select#viewer-background",
@@ -110,7 +111,7 @@ export function mount(container, { jobId }) {
         el("label.check", {}, showFrusta, " show camera frusta"),
         el("label.check", {}, spin, " auto-rotate"),
         el("label", {}, "Background ", background),
-        el("label", { title: "Fewer splats while the camera moves keep software WebGL interactive; the still view is always complete." }, "While moving, draw ", motion),
+        el("label", { title: "Fewer splats keep software WebGL interactive (Spark's level of detail); 'Render this view on the server' is always exact." }, "Draw ", detail),
         el("p", {}, renderButton),
         el("p", {}, pose),
         info,
@@ -125,7 +126,15 @@ export function mount(container, { jobId }) {
   const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 1000);
   scene.add(camera);
   let dirty = true;
-  const spark = new SparkRenderer({ renderer, preBlurAmount: PRE_BLUR, sortRadial: false, onDirty: () => (dirty = true) });
+  const gpu = isSoftwareRenderer(renderer);
+  detail.value = String(gpu.software ? SOFTWARE_SPLATS : 0);
+  const spark = new SparkRenderer({
+    renderer,
+    preBlurAmount: PRE_BLUR,
+    sortRadial: false,
+    lodSplatCount: Number(detail.value) || ALL_SPLATS,
+    onDirty: () => (dirty = true),
+  });
   scene.add(spark);
   const frusta = new THREE.Group();
   scene.add(frusta);
@@ -139,9 +148,7 @@ export function mount(container, { jobId }) {
   let pinned = null; // the wire camera jumped to, until the user moves
   let size = { width: 640, height: 480 };
   let aspect = 4 / 3;
-  const gpu = isSoftwareRenderer(renderer);
-  motion.value = String(gpu.software ? SOFTWARE_MOTION_SPLATS : 0);
-  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0, renderer: gpu.name, software: gpu.software, drawn: "all", moving: false, stillFrames: 0 };
+  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0, renderer: gpu.name, software: gpu.software, drawn: Number(detail.value) || "all", moving: false, stillFrames: 0 };
   let lastChange = -Infinity;
   let interacting = false;
   let snapshotWaiters = [];
@@ -164,16 +171,11 @@ export function mount(container, { jobId }) {
     dirty = true;
   }
 
-  /** Draw every splat when still, the level-of-detail budget while moving. */
-  function applyDetail(now) {
-    if (!mesh) return;
-    const budget = Number(motion.value);
-    const moving = spin.checked || interacting || now - lastChange < SETTLE_MS;
-    stats.moving = moving;
-    const want = moving && budget > 0 ? budget : "all";
-    if (want === stats.drawn) return;
-    stats.drawn = want;
-    spark.lodSplatCount = want === "all" ? STILL_SPLATS : want;
+  function applyDetail() {
+    const budget = Number(detail.value);
+    stats.drawn = budget || "all";
+    spark.lodSplatCount = budget || ALL_SPLATS;
+    lastChange = performance.now();
     dirty = true;
   }
 
@@ -183,15 +185,15 @@ export function mount(container, { jobId }) {
       dirty = true;
       lastChange = now;
     }
-    applyDetail(now);
+    stats.moving = spin.checked || interacting || now - lastChange < SETTLE_MS;
     if (dirty) {
       dirty = false;
       renderer.render(scene, camera);
       stats.frames += 1;
       stats.windowFrames += 1;
-      stats.stillFrames = stats.drawn === "all" && !stats.moving ? stats.stillFrames + 1 : 0;
-      // A snapshot is taken right after a full-detail draw whose splat order is settled (or,
-      // should sorting never settle, after a few full-detail draws).
+      stats.stillFrames = stats.moving ? 0 : stats.stillFrames + 1;
+      // A snapshot is taken right after a draw of the still camera whose splat order is settled
+      // (or, should sorting never settle, after a few draws).
       const settled = !spark.sorting && !spark.sortDirty;
       if (snapshotWaiters.length && stats.stillFrames > 0 && (settled || stats.stillFrames >= 4)) {
         const url = canvas.toDataURL("image/png");
@@ -241,7 +243,7 @@ export function mount(container, { jobId }) {
     return pinned ? pinhole(pinned) : threeCameraToPinhole(camera, size.width, size.height);
   }
 
-  /** A PNG data URL of the canvas at the current pose, every splat drawn. */
+  /** A PNG data URL of the canvas at the current pose, once the drawing has settled. */
   function snapshot() {
     dirty = true;
     return new Promise((resolve) => snapshotWaiters.push(resolve));
@@ -359,8 +361,7 @@ export function mount(container, { jobId }) {
     loading.textContent = "Preparing the splats…";
     // Every splat as exported for the still view; on a software renderer also a
     // level-of-detail copy (Spark's LoD tree) drawn while the camera moves.
-    // Spark's level-of-detail tree: the still view draws every splat of at least a pixel (the
-    // budget far above any model here), a moving camera at most the chosen number.
+    // With Spark's level-of-detail tree, so that a software renderer can draw fewer splats.
     mesh = new SplatMesh({ fileBytes: bytes, fileName: "model.ply", lod: true });
     scene.add(mesh);
     await mesh.initialized;
@@ -401,6 +402,7 @@ export function mount(container, { jobId }) {
     dirty = true;
   });
   background.addEventListener("change", setBackground);
+  detail.addEventListener("change", applyDetail);
 
   renderButton.addEventListener("click", renderExact);
   const onResize = () => {
