@@ -203,4 +203,7 @@ class ModelInfo(BaseModel):
     exports: list[str]
     """Available export formats (``ply``, ``splat``, ``checkpoint``)."""
     cameras: list[dict[str, Any]]
-    """The uploaded cameras (as in ``cameras.json``, with their split)."""
+    """The uploaded cameras (as in ``cameras.json``, with their split); the i-th one's image
+    is ``GET /v1/jobs/{id}/images/{i}``."""
+    background: tuple[float, float, float] | None = None
+    """Background colour (RGB in [0, 1]) the model was trained and renders with."""

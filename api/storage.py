@@ -63,6 +63,10 @@ class Storage:
             raise StorageError(f"unknown artifact {kind!r}; one of {', '.join(ARTIFACTS)}")
         return self.run_dir(job_id) / ARTIFACTS[kind]
 
+    def prior_picture(self, job_id: str, index: int) -> Path:
+        """The ``index``-th training view's depth prior drawn as an 8-bit PNG (near = bright)."""
+        return self.run_dir(job_id) / "priors" / f"view_{index:03d}.png"
+
     def new_staging_dir(self) -> Path:
         """An empty folder to receive an upload into; commit or discard it."""
         path = self.root / "staging" / uuid.uuid4().hex

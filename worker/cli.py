@@ -9,6 +9,7 @@ only when asked for (``--render N`` on the API's machine; ``sparsesplat serve`` 
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +31,17 @@ def run(args: argparse.Namespace) -> int:
 
     settings = load_settings()
     configure_logging(settings.log_level, json_lines=settings.log_json)
+    if settings.queue == QueueBackend.celery:
+        try:
+            import celery  # noqa: F401
+
+            if str(settings.database_url).startswith("postgres"):
+                import psycopg  # noqa: F401
+        except ImportError:
+            from sparsesplat.api.store.broker import MISSING_EXTRA
+
+            print(f"sparsesplat worker: {MISSING_EXTRA}", file=sys.stderr)
+            return 3
     assert settings.database_url is not None
     migrate(make_engine(settings.database_url))
     train = settings.workers if args.train is None else args.train

@@ -140,6 +140,8 @@ def _train(
         priors = compute_priors(
             scene, config.depth_prior, cache_dir=run_dir / "priors", models_dir=settings.models_dir
         )
+        pictures = [storage.prior_picture(claim.job_id, i) for i in range(len(priors))]
+        _write_prior_pictures(priors, pictures)
     checkpoint = run_dir / CHECKPOINT_NAME
     if spec.time_budget_s is not None and not checkpoint.exists():
         beat.set_phase("timing")
@@ -181,8 +183,26 @@ def _train(
     return Outcome(
         JobState.succeeded,
         f"trained {result.iteration} iterations in {result.seconds:.0f} s",
-        {"metrics": metrics, "n_gaussians": result.n_gaussians, "iterations": result.iteration},
+        {
+            "metrics": metrics,
+            "n_gaussians": result.n_gaussians,
+            "iterations": result.iteration,
+            "background": [float(c) for c in trainer.background.tolist()],
+        },
     )
+
+
+def _write_prior_pictures(priors: list[Any], pictures: list[Path]) -> None:
+    """One PNG per training view: the prior normalised to its own range (near = bright)."""
+    import numpy as np
+    from PIL import Image
+
+    for prior, path in zip(priors, pictures, strict=True):
+        depth = prior.depth.detach().cpu().numpy().astype(np.float64)
+        lo, hi = np.percentile(depth, 1), np.percentile(depth, 99)
+        scaled = 1.0 - np.clip((depth - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray((scaled * 255 + 0.5).astype(np.uint8)).save(path)
 
 
 def _finite(value: float) -> float | None:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
+import json
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
@@ -180,8 +181,6 @@ def get_metrics(
         e.data for e in service.jobs.events_after(job.id, 0, limit=100_000) if e.type == "record"
     ]
     if format == "json":
-        import json
-
         return Response(json.dumps(records), media_type="application/json")
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=RECORD_COLUMNS, extrasaction="ignore")
@@ -200,3 +199,32 @@ def get_metrics_plot(job: OwnJobDep, service: ServiceDep) -> FileResponse:
             404, "plot_not_ready", "no held-out record yet: the plot appears with the first one"
         )
     return FileResponse(path, media_type="image/png")
+
+
+@router.get("/{job_id}/images/{index}", summary="An uploaded image")
+def get_image(
+    job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
+) -> FileResponse:
+    """The ``index``-th frame's image as uploaded (frames in ``cameras.json`` order)."""
+    frames = json.loads((service.storage.upload_dir(job.id) / "cameras.json").read_text())["frames"]
+    if index >= len(frames):
+        raise ServiceError(404, "image_not_found", f"job {job.id} has {len(frames)} images")
+    path = service.storage.upload_dir(job.id) / frames[index]["image"]
+    return FileResponse(path, media_type=_IMAGE_TYPES.get(path.suffix, "application/octet-stream"))
+
+
+@router.get("/{job_id}/priors/{index}", summary="A training view's depth prior, as a picture")
+def get_prior(
+    job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
+) -> FileResponse:
+    """The depth prior of the ``index``-th training view (near = bright), once computed."""
+    path = service.storage.prior_picture(job.id, index)
+    if not path.is_file():
+        raise ServiceError(
+            404, "prior_not_found",
+            f"no depth prior {index} for job {job.id} (none yet, or the job uses no prior)",
+        )  # fmt: skip
+    return FileResponse(path, media_type="image/png")
+
+
+_IMAGE_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".webp": "image/webp"}

@@ -63,6 +63,7 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
         metrics={k: result.get("metrics", {}).get(k) for k in ("psnr", "ssim", "lpips", "avge")},
         exports=exports,
         cameras=cameras,
+        background=tuple(result["background"]) if result.get("background") else None,
     )
 
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -114,11 +115,12 @@ class LiveService:
         for proc in (self.api, self.workers):
             if proc is None:
                 continue
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
+            # Whatever is left of the group (a supervisor or worker still busy) goes too.
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            proc.wait()
 
     def tail(self, n: int = 3000) -> str:
         """The end of the service log (for failure messages)."""

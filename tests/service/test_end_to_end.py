@@ -70,6 +70,16 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     assert np.abs(served - expected).max() <= 1
 
     _check_outputs(live.url, job["id"], camera, served)
+    assert model["background"] is not None and len(model["background"]) == 3
+
+    # Uploaded images and the depth priors are served back (the web page shows them).
+    first = httpx.get(f"{live.url}/v1/jobs/{job['id']}/images/0")
+    assert first.status_code == 200 and first.headers["content-type"] == "image/png"
+    assert first.content == (run / "upload" / "images" / "000.png").read_bytes()
+    assert httpx.get(f"{live.url}/v1/jobs/{job['id']}/images/5").status_code == 404
+    prior = httpx.get(f"{live.url}/v1/jobs/{job['id']}/priors/0")
+    assert prior.status_code == 200
+    assert Image.open(io.BytesIO(prior.content)).size == (100, 100)
 
     ply = httpx.get(f"{live.url}/v1/models/{job['id']}/export/ply", timeout=60)
     assert ply.status_code == 200
