@@ -83,8 +83,8 @@ def camera(width: int = 40, height: int = 30, fx: float = 40.0, fy: float | None
 NEAR, FAR, EPS2D = 0.01, 1e10, 0.3
 """rasterize()'s defaults for the depth range and the 2D dilation."""
 AMBIGUOUS_SHARE = 0.05
-"""At most this share of a test image's pixels may be left out as ambiguous (else the test
-would test nothing; a typical scene has a few per thousand)."""
+"""At most this share of a test image's pixels (or one pixel) may be left out as ambiguous, else
+the test would test nothing; a typical scene has a few per thousand, a saturated one ~3 %."""
 
 
 @dataclass
@@ -324,8 +324,9 @@ def compare_with_reference(
         scene = gs if draw == 0 else jittered(gs, seed + draw)
         windows = decision_windows(scene, cam, near, far, eps2d)
         skip = windows.pixels
-        share = float(skip.double().mean()) if skip.numel() else 0.0
-        assert share <= max_ambiguous, f"{msg}: {share:.1%} of the pixels sit at a threshold"
+        # One pixel may always sit at a threshold (a 1x1 image then checks only finiteness).
+        count, allowed = int(skip.sum()), max(max_ambiguous * skip.numel(), 1.0)
+        assert count <= allowed, f"{msg}: {count} of {skip.numel()} pixels sit at a threshold"
         ranges = {"near": near, "far": far, "eps2d": eps2d}
         out, grads = render_with_grads(scene, cam, backend, seed, background, skip, **ranges)
         ref, ref_grads = render_with_grads(scene, cam, "reference", seed, background, skip,
