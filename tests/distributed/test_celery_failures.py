@@ -2,7 +2,8 @@
 in a real PostgreSQL, the API as ``sparsesplat serve``. Two jobs run at once in two worker
 processes; a worker process killed mid-training has its job redelivered and finished from its
 last checkpoint, once; Redis restarted without persistence loses no queued job; PostgreSQL
-restarted makes the API answer 503 meanwhile and everything recovers by itself.
+restarted makes the API answer 503 meanwhile and everything recovers by itself; a worker node
+stopped with SIGTERM hands its job back to be resumed elsewhere.
 
 One service (2 training nodes, 1 render worker) serves the module's tests in turn."""
 
@@ -138,7 +139,7 @@ def test_killed_worker_process_job_is_redelivered_and_resumes_from_its_checkpoin
     import torch
 
     cluster.wait_idle_workers()
-    job = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 150})
+    job = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 100})
     checkpoint = cluster.live.data_dir / "jobs" / job["id"] / "run" / "checkpoint.pt"
     _wait_progress(cluster.url, job["id"], 20)
     deadline = time.monotonic() + 60
@@ -166,6 +167,28 @@ def test_killed_worker_process_job_is_redelivered_and_resumes_from_its_checkpoin
     assert pid not in {w.pid for w in cluster.live_train_workers()}
 
 
+def test_stopped_worker_node_hands_its_job_back_and_another_resumes_it(
+    cluster: Cluster, mic_upload: Path
+) -> None:
+    cluster.wait_idle_workers()
+    job = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 100})
+    _wait_progress(cluster.url, job["id"], 20)
+    child = cluster.pid_of(job["id"])
+    node = int(Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    os.kill(node, signal.SIGTERM)  # warm shutdown of the Celery node (docker stop, Ctrl-C)
+
+    done = wait_state(cluster.url, job["id"], TERMINAL, timeout=300)
+    assert done["state"] == "succeeded", cluster.live.tail()
+    states = [
+        (e["data"]["state"], e["data"]["message"])
+        for e in _events(cluster.url, job["id"])
+        if e["type"] == "state"
+    ]
+    assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
+    assert "shut down" in states[2][1] and "attempt 2" in states[3][1], states
+    cluster.wait_idle_workers()  # the supervisor started a new node in its place
+
+
 def test_redis_restarted_mid_queue_every_queued_job_still_runs(
     cluster: Cluster, mic_upload: Path, redis_server: RedisServer
 ) -> None:
@@ -174,7 +197,7 @@ def test_redis_restarted_mid_queue_every_queued_job_still_runs(
 
     cluster.wait_idle_workers()
     # Two long jobs occupy both workers; two short ones wait in Redis behind them.
-    jobs = [submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 100}) for _ in range(2)]
+    jobs = [submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 60}) for _ in range(2)]
     jobs += [submit(cluster.url, mic_upload, FAST_SPEC) for _ in range(2)]
     ids = [j["id"] for j in jobs]
     for job_id in ids[:TRAIN_NODES]:
