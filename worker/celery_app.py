@@ -12,9 +12,9 @@ Processes:
 - the node's main process talks to the broker only: it never opens the database nor imports
   torch, so it forks clean children;
 - each pool process, as soon as it starts (before any job arrives), imports torch and the
-  engine and loads the already built native extensions, so a job's first iteration does not
-  wait for them, then connects to the database and registers itself as a training worker
-  (``/readyz`` and ``/metrics`` count it; its pid is the one running the job);
+  engine, so a job does not wait for those imports, then connects to the database and
+  registers itself as a training worker (``/readyz`` and ``/metrics`` count it; its pid is
+  the one running the job);
 - a task claims its job in the database (``JobStore.claim_job``): a message for a job that is
   running elsewhere, finished, cancelled or deleted is dropped. Then it runs the job exactly
   as the embedded worker does (``run_job`` under a ``JobHeartbeat``).
@@ -175,37 +175,18 @@ def pool_process() -> PoolProcess:
 
 
 def _warm_up() -> None:
-    """Import torch and the engine, and load the native CPU extensions that are already built,
-    now, while idle: a fresh pool process per job would otherwise pay seconds of it before the
-    job's first iteration. An extension that needs building is left to the job (as in the
-    embedded worker): a long build here could be cut short by a pool restart, and torch leaves
-    its build lock behind when a builder is killed."""
+    """Import torch and the engine now, while idle, so a job does not wait for them.
+
+    The native extensions are not loaded here, though a job would start sooner: torch's
+    ``cpp_extension.load`` holds a lock file while it checks or builds them, and a process
+    killed meanwhile (a pool restart, a test's teardown, ``kill -9``) leaves that file behind,
+    which blocks every later load on the machine. Pool processes start after every job, so
+    here the window would be hit far more often than in a job."""
     import torch
 
     torch.set_num_threads(settings.torch_threads)
     import sparsesplat.engine.datasets
     import sparsesplat.engine.train  # noqa: F401
-
-    if settings.device.value != "cpu":
-        return
-    try:
-        from sparsesplat.engine import native_build
-        from sparsesplat.engine.color import build as color_build
-        from sparsesplat.engine.raster import build as raster_build
-
-        extensions = [
-            getattr(raster_build, "_EXTENSION", None),
-            getattr(raster_build, "_PROJECTION", None),
-            getattr(color_build, "_EXTENSION", None),
-        ]
-        for extension in extensions:
-            if extension is None:
-                continue
-            name = extension.build_name()
-            if (native_build.extensions_root() / name / f"{name}.so").exists():
-                extension.load()
-    except Exception:  # only an optimisation: the job loads (or builds) what it needs
-        log.warning("native extensions not preloaded", exc_info=True)
 
 
 @worker_process_init.connect
