@@ -91,7 +91,7 @@ def test_unknown_route_is_a_typed_error(service: str) -> None:
     assert response.status_code == 404
     assert response.json()["code"] == "not_found"
     with Client(service) as client, pytest.raises(NotFound):
-        client._parse(client._request("GET", "/no-such-thing"), type(client.health()))
+        client.get_job("job_00000000000000000000")
 
 
 def test_cli_health_command(service: str) -> None:
@@ -108,5 +108,5 @@ def test_cli_health_command(service: str) -> None:
 
 def test_unreachable_service_is_a_clear_error() -> None:
     url = f"http://127.0.0.1:{_free_port()}"
-    with Client(url, timeout=2) as client, pytest.raises(ConnectionFailed, match="cannot reach"):
+    with Client(url, timeouts=2) as client, pytest.raises(ConnectionFailed, match="cannot reach"):
         client.health()
