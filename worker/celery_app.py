@@ -223,9 +223,12 @@ def run_delivered_job(job_id: str) -> str:
         log.info("message dropped: the job is not queued", extra={"job_id": job_id})
         return "dropped"
 
+    stopping: list[int] = []
+
     def on_sigterm(signum: int, _frame: FrameType | None) -> None:
         log.info("stopping on signal: the job checkpoints and goes back to the queue",
                  extra={"signal": signum, "job_id": job_id})  # fmt: skip
+        stopping.append(signum)
         if process.current is not None:
             process.current.request_shutdown()
 
@@ -238,6 +241,8 @@ def run_delivered_job(job_id: str) -> str:
             log.info("job claimed", extra={"attempt": claim.attempt})
             beat = JobHeartbeat(process.store, job_id, process.worker_id, settings)
             process.current = beat
+            if stopping:  # the signal came before the heartbeat existed
+                beat.request_shutdown()
             outcome = run_job(claim, process.store, process.storage, settings, beat)
             process.current = None
             if outcome.state == JobState.queued:
