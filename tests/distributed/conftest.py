@@ -35,8 +35,12 @@ def postgres() -> Iterator[PostgresServer]:
     _need_extra()
     try:
         server = PostgresServer()
+    except (Unavailable, OSError) as exc:
+        pytest.skip(f"PostgreSQL unavailable: {exc}")
+    try:
         server.start()
     except (Unavailable, OSError) as exc:
+        server.close()
         pytest.skip(f"PostgreSQL unavailable: {exc}")
     yield server
     server.close()
@@ -48,8 +52,12 @@ def redis_server() -> Iterator[RedisServer]:
     _need_extra()
     try:
         server = RedisServer()
+    except (Unavailable, OSError) as exc:
+        pytest.skip(f"Redis unavailable: {exc}")
+    try:
         server.start()
     except (Unavailable, OSError) as exc:
+        server.close()
         pytest.skip(f"Redis unavailable: {exc}")
     yield server
     server.close()

@@ -62,6 +62,13 @@ class PostgresServer:
         if self.prefix:
             shutil.chown(self.root, "postgres", "postgres")
         self.port = free_port()
+        try:
+            self._initdb()
+        except BaseException:
+            shutil.rmtree(self.root, ignore_errors=True)
+            raise
+
+    def _initdb(self) -> None:
         self._run([self.initdb, "-D", str(self.data), "-U", "sparsesplat", "--auth=trust",
                    "-E", "UTF8", "--no-sync", "--no-instructions"], timeout=120)  # fmt: skip
 

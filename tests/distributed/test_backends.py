@@ -1,10 +1,7 @@
 """The service issue's end-to-end test, unchanged, on both backends: upload 3 views + held-out
 views, stream events to completion, render a held-out pose equal to the trainer's own
-evaluation render, download the .ply.
-
-The embedded case is the very test ``tests/service/test_end_to_end.py`` runs in the default
-suite, so here it runs with ``-m slow`` only (the pair then runs side by side); the default
-suite runs the Celery + PostgreSQL case.
+evaluation render, download the .ply. (The embedded case repeats tests/service's own run of it,
+side by side with the Celery + PostgreSQL case: about half a minute on an idle machine.)
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ from tests.service.test_end_to_end import test_upload_train_stream_render_export
 pytestmark = pytest.mark.shared_data
 
 
-@pytest.mark.parametrize("backend", [pytest.param("embedded", marks=pytest.mark.slow), "celery"])
+@pytest.mark.parametrize("backend", ["embedded", "celery"])
 def test_end_to_end_on_each_backend(
     backend: str, tmp_path: Path, mic_upload: Path, request: pytest.FixtureRequest
 ) -> None:
