@@ -95,6 +95,9 @@ class Windows:
     """(H, W) bool: pixels with a blending decision within float32's error of its threshold."""
     gaussians: Tensor
     """(N,) bool: Gaussians whose culling (opacity, screen box) is within float32's error."""
+    coverage: Tensor
+    """(N,) float64: how many pixels blend each Gaussian (its gradient sums that many terms per
+    output channel)."""
 
 
 def _projected(gs: Gaussians, cam: Camera, dtype: torch.dtype, near: float, far: float,
@@ -221,12 +224,21 @@ def decision_windows(
     stop = used & (torch.exp(log_t) <= MIN_TRANSMITTANCE)
     reached = torch.cumsum(stop.to(torch.int32), dim=1) - stop.to(torch.int32) == 0
     pixels = (amb & reached).any(dim=1).reshape(h, w)
-    return Windows(pixels, amb_g)
+    coverage = torch.zeros(len(z), dtype=torch.float64)
+    coverage[order] = (used & reached).sum(dim=0).double()
+    return Windows(pixels, amb_g, coverage)
+
+
+def loss_weights(out: RasterOutput, seed: int) -> tuple[Tensor, Tensor, Tensor]:
+    """The seeded random weights (uniform in [0, 1)) of image, depth and alpha in the test loss."""
+    g = torch.Generator().manual_seed(seed + 7)
+    return tuple(torch.rand(t.shape, generator=g) for t in (out.image, out.depth, out.alpha))  # type: ignore[return-value]
 
 
 def render_with_grads(
     gs: Gaussians, cam: Camera, backend: str, seed: int, background: Tensor | None = None,
     skip: Tensor | None = None, near: float = NEAR, far: float = FAR, eps2d: float = EPS2D,
+    signs: int | None = None,
 ) -> tuple[RasterOutput, list[Tensor | None]]:  # fmt: skip
     """Render, back-propagate a seeded random linear loss of image, depth and alpha.
 
@@ -234,7 +246,8 @@ def render_with_grads(
     CPU), ``"reference"`` (the dense reference in float64, inputs promoted, so outputs and
     gradients are float64) or ``"reference32"`` (the same dense code run by torch in float32: the
     scale of float32 rounding). ``skip`` ((H, W) bool) zeroes the loss weights there (pixels
-    whose value depends on a float32 decision).
+    whose value depends on a float32 decision). ``signs``: a seed for random signs on every loss
+    weight (see :func:`gradient_terms`).
     """
     dtype = torch.float64 if backend == "reference" else torch.float32
     device = "cuda" if backend == "cuda" else "cpu"
@@ -249,14 +262,56 @@ def render_with_grads(
     if device != "cpu":
         out = RasterOutput(out.image.cpu(), out.depth.cpu(), out.alpha.cpu(), out.radii.cpu(),
                            out.means2d)  # fmt: skip
-    g = torch.Generator().manual_seed(seed + 7)
+    weights = list(loss_weights(out, seed))
+    if signs is not None:
+        g = torch.Generator().manual_seed(signs)
+        weights = [w * (torch.randint(0, 2, w.shape, generator=g) * 2 - 1) for w in weights]
     keep = 1.0 if skip is None else (~skip).to(dtype)
-    loss = (out.image * torch.rand(out.image.shape, generator=g).to(dtype) * keep).sum()
-    loss = loss + (out.depth * torch.rand(out.depth.shape, generator=g).to(dtype) * keep).sum()
-    loss = loss + (out.alpha * torch.rand(out.alpha.shape, generator=g).to(dtype) * keep).sum()
+    loss = torch.zeros((), dtype=dtype)
+    for value, w in zip((out.image, out.depth, out.alpha), weights, strict=True):
+        loss = loss + (value * w.to(dtype) * keep).sum()
     if loss.requires_grad:
         loss.backward()
     return out, [p.grad for p in leaves]
+
+
+SIGN_SAMPLES = 4
+"""Random-sign renders that estimate the size of a gradient's per-pixel terms."""
+
+
+def gradient_terms(
+    gs: Gaussians, cam: Camera, seed: int, background: Tensor | None, windows: Windows,
+    grads64: list[Tensor | None], near: float = NEAR, far: float = FAR, eps2d: float = EPS2D,
+    means2d_grad64: Tensor | None = None,
+) -> list[Tensor]:  # fmt: skip
+    """Magnitude of the terms each gradient entry sums, for the float32 rule.
+
+    A Gaussian's gradient is a sum over the pixels it covers of ``c_p = w_p d out_p / d theta``,
+    and these terms cancel (left and right of a centre, in front of and behind a colour): the
+    gradient can be ~0 while float32 summation keeps only ``u * sum |c_p|`` of it. With random
+    signs ``s_p`` on the loss weights, ``E[(sum s_p c_p)^2] = sum c_p^2``, so a few float64
+    renders estimate ``Q = sqrt(sum c_p^2)``, and ``sum |c_p| <= sqrt(n) Q`` (Cauchy-Schwarz)
+    over the ``n`` terms: the pixels the Gaussian covers times the output channels. Returns
+    ``|gradient| + sqrt(n) Q`` per entry (float64), one tensor per input of ``rasterize`` and,
+    when ``means2d_grad64`` is given, one more for the 2D means' gradient.
+    """
+    like = [*gs.tensors(), gs.means[:, :2]]
+    squares: list[Tensor] = [torch.zeros_like(t, dtype=torch.float64) for t in like]
+    for k in range(SIGN_SAMPLES):
+        out, flipped = render_with_grads(gs, cam, "reference", seed, background, windows.pixels,
+                                         near, far, eps2d, signs=seed * 31 + k)  # fmt: skip
+        for acc, g in zip(squares, [*flipped, out.means2d.grad], strict=True):
+            if g is not None:
+                acc += g.double().square()
+    channels = gs.features.shape[1] + 2  # image channels, depth, alpha
+    n = (windows.coverage * channels).clamp_min(1.0).sqrt()
+    sizes = []
+    wanted = [*grads64] + ([means2d_grad64] if means2d_grad64 is not None else [])
+    for acc, g in zip(squares, wanted, strict=False):
+        q = (acc / SIGN_SAMPLES).sqrt()
+        size = torch.zeros_like(acc) if g is None else g.double().abs()
+        sizes.append(size + n.reshape(-1, *[1] * (acc.dim() - 1)) * q)
+    return sizes
 
 
 def assert_finite(out: RasterOutput, grads: list[Tensor | None], what: str) -> None:
@@ -318,7 +373,6 @@ def compare_with_reference(
     """
     msg = f"{what} (seed {seed})"
     pooled: dict[str, list[list[Tensor]]] = {}
-    terms: dict[str, float | None] = {}
     first: tuple[RasterOutput, list[Tensor | None], RasterOutput, Windows] | None = None
     for draw in range(draws):
         scene = gs if draw == 0 else jittered(gs, seed + draw)
@@ -327,12 +381,12 @@ def compare_with_reference(
         # One pixel may always sit at a threshold (a 1x1 image then checks only finiteness).
         count, allowed = int(skip.sum()), max(max_ambiguous * skip.numel(), 1.0)
         assert count <= allowed, f"{msg}: {count} of {skip.numel()} pixels sit at a threshold"
-        ranges = {"near": near, "far": far, "eps2d": eps2d}
-        out, grads = render_with_grads(scene, cam, backend, seed, background, skip, **ranges)
+        ranges = (near, far, eps2d)
+        out, grads = render_with_grads(scene, cam, backend, seed, background, skip, *ranges)
         ref, ref_grads = render_with_grads(scene, cam, "reference", seed, background, skip,
-                                           **ranges)  # fmt: skip
+                                           *ranges)  # fmt: skip
         r32, grads32 = render_with_grads(scene, cam, "reference32", seed, background, skip,
-                                         **ranges)  # fmt: skip
+                                         *ranges)  # fmt: skip
         assert_finite(out, grads, f"{msg} (cpu)")
         assert_finite(ref, ref_grads, f"{msg} (reference)")
         if first is None:
@@ -340,25 +394,23 @@ def compare_with_reference(
         for name in ("image", "depth", "alpha"):
             a, b, c = (getattr(o, name).detach() for o in (out, ref, r32))
             keep = ~skip.expand_as(b)
-            pooled.setdefault(name, []).append([a[keep], b[keep], c[keep]])
             # A pixel sums w_i f_i over its Gaussians plus T * background: the image's largest
             # value stands for the size of the terms (features may cancel).
-            scale = float(b.abs().max()) if b.numel() else 0.0
-            terms[name] = max(scale, terms.get(name) or 0.0)
-        for name, g, g64, g32 in zip(PARAM_NAMES, grads, ref_grads, grads32, strict=True):
+            scale = torch.full_like(b[keep].double(), float(b.abs().max()) if b.numel() else 0.0)
+            pooled.setdefault(name, []).append([a[keep], b[keep], c[keep], scale])
+        sizes = gradient_terms(scene, cam, seed, background, windows, ref_grads, *ranges)
+        for name, g, g64, g32, size in zip(PARAM_NAMES, grads, ref_grads, grads32, sizes,
+                                           strict=True):  # fmt: skip
             like = scene.tensors()[PARAM_NAMES.index(name)].double()
             rows = [_zeros_if_none(t, like) for t in (g, g64, g32)]
-            pooled.setdefault(f"grad of {name}", []).append(rows)
-            terms[f"grad of {name}"] = None
+            pooled.setdefault(f"grad of {name}", []).append([*rows, size])
     results = []
     for name, parts in pooled.items():
-        got, ref64, ref32 = (torch.cat([p[k] for p in parts]) for k in range(3))
+        got, ref64, ref32, terms = (torch.cat([p[k] for p in parts]) for k in range(4))
         if perturb is not None and name in (perturb[0], f"grad of {perturb[0]}"):
             got = got.clone()
             got.view(-1)[perturb[1]] *= 1 + perturb[2]
-        # Gradients: per-Gaussian rows (row_terms); outputs: the image's largest value.
-        t = terms[name]
-        results.append(compare_float32(got, ref64, ref32, t, f"{msg}: {name}"))
+        results.append(compare_float32(got, ref64, ref32, terms, f"{msg}: {name}"))
     assert first is not None
     return ReferenceComparison(results, first[0], first[1], first[2], first[3])
 

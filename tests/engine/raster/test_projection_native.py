@@ -25,6 +25,7 @@ from sparsesplat.engine.raster import build, rasterize
 from sparsesplat.engine.raster.cpu_backend import _Blend
 from sparsesplat.engine.raster.native_projection import project_native
 from sparsesplat.engine.raster.projection import Projected, project
+from sparsesplat.engine.raster.types import RasterOutput
 from tests.engine.numerics import Float32Comparison, assert_float32_close, compare_float32
 
 from .helpers import (
@@ -33,7 +34,9 @@ from .helpers import (
     camera,
     culling_windows,
     decision_windows,
+    gradient_terms,
     jittered,
+    loss_weights,
     random_gaussians,
 )
 
@@ -345,43 +348,47 @@ def test_rasterize_cpu_matches_torch_projection_pipeline(seed: int) -> None:
     cam = camera(41, 33)
     windows = decision_windows(gs, cam)
     keep = (~windows.pixels).double()
-    gen = torch.Generator().manual_seed(seed + 3)
-    weights = [torch.rand(3, 33, 41, generator=gen), torch.rand(1, 33, 41, generator=gen)]
 
-    def loss_of(image: Tensor, depth: Tensor) -> Tensor:
-        w = [(x * keep).to(image.dtype) for x in weights]
-        return (image * w[0]).sum() + (depth * w[1]).sum()
+    def loss_of(image: Tensor, depth: Tensor, alpha: Tensor) -> Tensor:
+        # The loss of helpers.render_with_grads (gradient_terms measures its terms).
+        weights = loss_weights(RasterOutput(image, depth, alpha, torch.zeros(0), image), seed)
+        return sum(((o * w.to(o.dtype) * keep.to(o.dtype)).sum()
+                    for o, w in zip((image, depth, alpha), weights, strict=True)),
+                   torch.zeros((), dtype=image.dtype))  # fmt: skip
 
     params = [t.clone().requires_grad_(True) for t in gs.tensors()]
     out = rasterize(*params, cam, backend="cpu")
-    loss_of(out.image, out.depth).backward()
+    loss_of(out.image, out.depth, out.alpha).backward()
     assert out.means2d.grad is not None, f"seed {seed}: means2d.grad not retained"
 
     leaves = [t.clone().requires_grad_(True) for t in gs.tensors()]
     proj = project(*leaves[:4], cam, 0.01, 1e10, 0.3)
     proj.means2d.retain_grad()
     parts = [proj.means2d, proj.conics, proj.opacities, proj.depths, leaves[4], torch.zeros(3)]
-    image, depth, _, _ = _Blend.apply(*[t.contiguous() for t in parts], proj.radii, 41, 33)
-    loss_of(image, depth).backward()
+    image, depth, alpha, _ = _Blend.apply(*[t.contiguous() for t in parts], proj.radii, 41, 33)
+    loss_of(image, depth, alpha).backward()
     assert proj.means2d.grad is not None
 
     exact = [t.double().requires_grad_(True) for t in gs.tensors()]
     ref = rasterize(*exact, cam, backend="reference")
-    loss_of(ref.image, ref.depth).backward()
+    loss_of(ref.image, ref.depth, ref.alpha).backward()
     assert ref.means2d.grad is not None
+    sizes = gradient_terms(gs, cam, seed, None, windows, [t.grad for t in exact],
+                           means2d_grad64=ref.means2d.grad)  # fmt: skip
 
     msg = f"seed {seed}"
     mask = keep.bool()
     for name, a, b, c in (("image", out.image, ref.image, image),
-                          ("depth", out.depth, ref.depth, depth)):  # fmt: skip
+                          ("depth", out.depth, ref.depth, depth),
+                          ("alpha", out.alpha, ref.alpha, alpha)):  # fmt: skip
         m = mask.expand_as(b)
         scale = float(b.detach().abs().max())
         assert_float32_close(a.detach()[m], b.detach()[m], c.detach()[m], scale, f"{name} {msg}")
-    assert_float32_close(out.means2d.grad, ref.means2d.grad, proj.means2d.grad,
+    assert_float32_close(out.means2d.grad, ref.means2d.grad, proj.means2d.grad, sizes[-1],
                          what=f"means2d.grad {msg}")  # fmt: skip
-    for name, a, b, c in zip(PARAM_NAMES, params, exact, leaves, strict=True):
+    for name, a, b, c, size in zip(PARAM_NAMES, params, exact, leaves, sizes, strict=False):
         assert a.grad is not None and b.grad is not None and c.grad is not None, name
-        assert_float32_close(a.grad, b.grad, c.grad, what=f"grad of {name} {msg}")
+        assert_float32_close(a.grad, b.grad, c.grad, size, f"grad of {name} {msg}")
     sure = ~windows.gaussians
     assert torch.equal((out.radii > 0)[sure], (ref.radii > 0)[sure]), f"{msg}: culling differs"
     slack = (ref.radii.double() * 1e-5).clamp_min(1.0)
