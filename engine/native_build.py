@@ -113,7 +113,8 @@ def extensions_root() -> Path:
 
 @contextlib.contextmanager
 def _locked(path: Path) -> Iterator[None]:
-    """An exclusive file lock across processes (staging the sources of one build)."""
+    """An exclusive file lock across processes (one build or load of an extension at a time);
+    the kernel releases it when its holder dies."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a+b") as f:
         fcntl.flock(f, fcntl.LOCK_EX)
@@ -186,18 +187,27 @@ class NativeExtension:
                 name = self.build_name()
                 build_dir = extensions_root() / name
                 src = build_dir / "src"
+                # The whole build-or-load runs under a kernel lock (released when a process
+                # dies). torch's own "lock" file is not: a process killed while building leaves
+                # it, and every later load would wait for it forever. Holding our lock, nobody
+                # else is building, so such a file is stale and goes.
                 with _locked(build_dir / "stage.lock"):
                     stage_sources(self.source_dir, self.files(), src)
-                # Copies: the builder appends its own flags to the lists it is given.
-                mod = cpp_extension.load(
-                    name=name,
-                    sources=[str(src / f) for f in self.sources],
-                    extra_cflags=list(self.cflags),
-                    extra_ldflags=list(LDFLAGS),
-                    extra_include_paths=[str(src)],
-                    build_directory=str(build_dir),
-                    verbose=False,
-                )
+                    stale = build_dir / "lock"
+                    if stale.exists():
+                        log.warning("removing a stale build lock left by a killed process: %s",
+                                    stale)  # fmt: skip
+                        stale.unlink(missing_ok=True)
+                    # Copies: the builder appends its own flags to the lists it is given.
+                    mod = cpp_extension.load(
+                        name=name,
+                        sources=[str(src / f) for f in self.sources],
+                        extra_cflags=list(self.cflags),
+                        extra_ldflags=list(LDFLAGS),
+                        extra_include_paths=[str(src)],
+                        build_directory=str(build_dir),
+                        verbose=False,
+                    )
             except Exception as exc:  # the builder raises RuntimeError/CalledProcessError/OSError
                 raise self.on_failure(
                     f"building the {self.description} from {self.source_dir} failed "

@@ -120,3 +120,18 @@ def test_a_second_checkout_reuses_the_build(ext: NativeExtension, tmp_path: Path
     with open(copy / ext.sources[0], "a") as f:
         f.write("\n// changed\n")
     assert twin.build_name() != ext.build_name()
+
+
+def test_a_stale_build_lock_from_a_killed_process_does_not_block_loading(tmp_path: Path) -> None:
+    """torch's builder marks a build with a plain ``lock`` file; a process killed meanwhile
+    leaves it behind, and every later load used to wait for it forever."""
+    ext = raster_build._PROJECTION
+    built = ext.load()
+    stale = native_build.extensions_root() / ext.build_name() / "lock"
+    stale.write_text("")
+    copy = tmp_path / "clone" / "cpu"
+    shutil.copytree(ext.source_dir, copy)
+    fresh = NativeExtension(ext.name, copy, ext.sources, ext.cflags, RasterError, "", "fresh")
+    loaded = fresh.load()  # would hang here (the test's timeout) before the fix
+    assert Path(str(loaded.__file__)) == Path(str(built.__file__))
+    assert not stale.exists()
