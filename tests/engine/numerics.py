@@ -42,6 +42,7 @@ entry or one term and asserts that the rule fails.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -173,3 +174,31 @@ def assert_float32_close(
     result = compare_float32(got, ref, torch32, terms, what, factor, floor_ulps)
     assert result.passed, result.message()
     return result
+
+
+def summed_terms(
+    backward: Callable[[Tensor], Sequence[Tensor]],
+    upstream: Tensor,
+    n_terms: float,
+    seed: int,
+    samples: int = 4,
+) -> list[Tensor]:
+    """Magnitude of the terms of gradients that sum ``c_p = upstream_p * d out_p / d theta`` over
+    ``n_terms`` outputs (a weight's gradient over a batch of points, a Gaussian's over pixels).
+
+    The terms cancel, so the gradient itself says nothing of their size. With random signs
+    ``s_p`` on the upstream gradient, ``E[(sum s_p c_p)^2] = sum c_p^2``; ``samples`` float64
+    backward passes (``backward(upstream)`` returns the gradients) estimate ``Q = sqrt(sum
+    c_p^2)``, and ``sum |c_p| <= sqrt(n_terms) Q`` (Cauchy-Schwarz). Returns that bound per
+    entry of each gradient."""
+    gen = torch.Generator().manual_seed(seed)
+    squares: list[Tensor] | None = None
+    for _ in range(samples):
+        signs = torch.randint(0, 2, upstream.shape, generator=gen).to(upstream.dtype) * 2 - 1
+        grads = [g.detach().double() for g in backward(upstream * signs)]
+        if squares is None:
+            squares = [g.square() for g in grads]
+        else:
+            squares = [acc + g.square() for acc, g in zip(squares, grads, strict=True)]
+    assert squares is not None, "samples must be positive"
+    return [(acc / samples).sqrt() * math.sqrt(max(n_terms, 1.0)) for acc in squares]

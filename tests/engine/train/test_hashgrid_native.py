@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from sparsesplat.engine.color.hashgrid import HashGrid
-from tests.engine.numerics import assert_float32_close, compare_float32
+from tests.engine.numerics import assert_float32_close, compare_float32, summed_terms
 
 from .colour_reference import field_reference, grid_reference
 
@@ -69,15 +69,29 @@ def _run(
 NAMES = ("values", "d table", "d position")
 
 
+def _terms(
+    grid: HashGrid, x: torch.Tensor, upstream: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, None]:
+    """Magnitude of the terms of each value (sum over corners of w |row|) and each table
+    gradient entry (sum over the points that touch the row of w |upstream|): the trilinear
+    weights are >= 0, so both are the reference run on absolute values. The position gradient
+    sums a handful of terms per point: its row stands for them (``row_terms``)."""
+    table = grid.embeddings.detach().double().abs().requires_grad_(True)
+    out = grid_reference(grid, x, x.double(), table)
+    out.backward(upstream.double().abs())
+    assert table.grad is not None
+    return out.detach(), table.grad, None
+
+
 def _assert_rule(got: tuple[torch.Tensor, ...], grid: HashGrid, x: torch.Tensor,
                  upstream: torch.Tensor, msg: str) -> None:  # fmt: skip
     """Values and both gradients of ``got`` within the float32 rule of the float64 reference,
-    with torch's float32 implementation as the scale (rows: a point's code, a table row, a
-    point's position)."""
+    with torch's float32 implementation as the scale and ``_terms`` as the terms."""
     ref = _run(grid, x, "float64", upstream)
     t32 = _run(grid, x, "torch", upstream)
-    for name, a, b, c in zip(NAMES, got, ref, t32, strict=True):
-        assert_float32_close(a, b, c, what=f"{name}, {msg}")
+    terms = _terms(grid, x, upstream)
+    for name, a, b, c, t in zip(NAMES, got, ref, t32, terms, strict=True):
+        assert_float32_close(a, b, c, t, what=f"{name}, {msg}")
 
 
 LAYOUTS = [
@@ -145,10 +159,11 @@ def test_the_check_catches_one_wrong_entry(target: int, relative: float, seed: i
     got = list(_run(grid, x, "native", upstream))
     ref = _run(grid, x, "float64", upstream)
     t32 = _run(grid, x, "torch", upstream)
-    assert compare_float32(got[target], ref[target], t32[target]).passed, f"seed={seed}"
+    terms = _terms(grid, x, upstream)[target]
+    assert compare_float32(got[target], ref[target], t32[target], terms).passed, f"seed={seed}"
     spoiled = got[target].clone()
     spoiled.view(-1)[int(spoiled.abs().argmax())] *= 1 + relative
-    assert not compare_float32(spoiled, ref[target], t32[target]).passed, f"seed={seed}"
+    assert not compare_float32(spoiled, ref[target], t32[target], terms).passed, f"seed={seed}"
 
 
 def test_native_gradients_only_where_asked() -> None:
@@ -215,14 +230,25 @@ def test_fused_color_field_matches_layer_by_layer(seed: int) -> None:
         field.grid.embeddings.uniform_(-0.5, 0.5, generator=g)
     cam = torch.randn(3, generator=g) * 5
     upstream = torch.randn(len(pts), 3, generator=g)
-    params64 = {k: p.detach().double().requires_grad_(True) for k, p in field.named_parameters()}
-    means64 = pts.double().requires_grad_(True)
-    want, ambiguous = field_reference(field, params64, pts, cam, means64)
+
+    def reference_grads(up: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Colours and the gradients (centres, then every parameter) of the float64 field."""
+        params = {k: p.detach().double().requires_grad_(True) for k, p in field.named_parameters()}
+        means64 = pts.double().requires_grad_(True)
+        colours, _ = field_reference(field, params, pts, cam, means64)
+        grads = torch.autograd.grad(colours, [means64, *params.values()], up.double())
+        return colours.detach(), list(grads)
+
+    _, ambiguous = field_reference(
+        field, {k: p.detach().double() for k, p in field.named_parameters()}, pts, cam
+    )
     assert float(ambiguous.double().mean()) < 0.1, f"seed={seed}: too many ReLUs at 0"
     keep = ~ambiguous
     upstream = upstream * keep.unsqueeze(-1)
-    want.backward(upstream.double())
-    assert means64.grad is not None
+    want, (want_dm, *want_dp) = reference_grads(upstream)
+    # A weight's gradient sums the contributions of every point's 3 colours, which cancel.
+    sizes = summed_terms(lambda up: reference_grads(up)[1][1:], upstream,
+                         3 * int(keep.sum()), seed)  # fmt: skip
     results = []
     for fn in (lambda m: field(m, cam), lambda m: _field_reference(field, m, cam)):
         field.zero_grad(set_to_none=True)
@@ -233,16 +259,16 @@ def test_fused_color_field_matches_layer_by_layer(seed: int) -> None:
         results.append((out.detach(), means.grad.clone(), grads))
     (got, got_dm, got_dp), (t32, t32_dm, t32_dp) = results
     msg = f"seed={seed}"
-    assert_float32_close(got[keep], want.detach()[keep], t32[keep], what=f"colours {msg}")
-    assert_float32_close(got_dm, means64.grad, t32_dm, what=f"grad of means {msg}")
-    for (name, p64), a, b in zip(params64.items(), got_dp, t32_dp, strict=True):
-        assert p64.grad is not None
-        assert_float32_close(a, p64.grad, b, what=f"grad of {name} {msg}")
+    assert_float32_close(got[keep], want[keep], t32[keep], what=f"colours {msg}")
+    assert_float32_close(got_dm, want_dm, t32_dm, what=f"grad of means {msg}")
+    names = [name for name, _ in field.named_parameters()]
+    for name, a, b, c, size in zip(names, got_dp, want_dp, t32_dp, sizes, strict=True):
+        assert_float32_close(a, b, c, b.abs() + size, f"grad of {name} {msg}")
     assert got_dp[-3][0].abs().sum() == 0, "the density row must get no gradient"
     geo = field.geo_features(pts)
     dirs = torch.nn.functional.normalize(pts - cam, dim=-1)
     cached = field.colors_from_features(geo, dirs)
-    assert_float32_close(cached[keep], want.detach()[keep], t32[keep], what=f"cached {msg}")
+    assert_float32_close(cached[keep], want[keep], t32[keep], what=f"cached {msg}")
 
 
 def test_native_sh_matches_reference(seed: int) -> None:
@@ -288,6 +314,6 @@ def test_position_gradient_with_and_without_forward_jacobian(seed: int) -> None:
     gx_re, gt_re = ext.backward(x, table, upstream, *grid.layout(), True, True, None)
     assert torch.equal(gt_jac, gt_re), f"table gradients differ, seed={seed}"
     ref = _run(grid, x, "float64", upstream)[2]
-    t32 = _run(grid, x, "torch", upstream)[2]
+    t32 = _run(grid, x, "torch", upstream)[2]  # position gradients: rows are their terms
     for name, gx in (("forward Jacobian", gx_jac), ("re-gather", gx_re)):
         assert_float32_close(gx, ref, t32, what=f"d position, {name}, seed={seed}")
