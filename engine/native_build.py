@@ -3,14 +3,14 @@
 Each extension is built by ``torch.utils.cpp_extension.load`` at first use and reused by later
 processes. The build directory is keyed by content: ``<name>_<key>`` under
 ``$TORCH_EXTENSIONS_DIR`` (torch's default cache when unset), where ``key`` hashes the sources
-and headers, the compiler flags and what the binary depends on (torch and Python versions,
-machine, compiler). The sources are copied into that directory and compiled from there, so the
-build commands never mention the checkout's path: two checkouts of the same sources on one
-machine share one build, a checkout with different sources gets its own directory instead of
-rebuilding the other's (torch alone caches by name only, and its ninja rebuilds whenever the
-source paths in the command lines change), and any change to a source, header or flag gives a
-new key and so a fresh build. One loader per extension keeps the built module and a lock, so
-concurrent first calls in one process build it once.
+and headers, the compiler flags and what the build commands depend on (torch version and
+installation path, Python, machine, compiler). The sources are copied into that directory and
+compiled from there, so the build commands never mention the checkout's path: checkouts of the
+same sources using one virtual environment share one build, and any other checkout or
+environment gets its own directory instead of rebuilding this one (torch alone caches by name
+only, and its ninja rebuilds whenever the paths in the command lines change). Any change to a
+source, header or flag gives a new key and so a fresh build. One loader per extension keeps the
+built module and a lock, so concurrent first calls in one process build it once.
 """
 
 from __future__ import annotations
@@ -54,12 +54,22 @@ def staged_files(source_dir: Path, sources: Sequence[str]) -> list[str]:
 
 
 def _toolchain() -> dict[str, str]:
-    """What the binary depends on besides the sources and flags."""
+    """What the binary and its build commands depend on besides the sources and flags.
+
+    The paths of the torch installation and of Python's headers are in the build commands
+    (include and library paths): two virtual environments with the same torch version would
+    otherwise share a directory whose commands differ, and ninja would rebuild on every switch
+    (seen: a fresh clone's venv at /tmp/cicheck relinking this checkout's hash grid).
+    """
+    import sysconfig
+
     import torch
 
     return {
         "torch": str(torch.__version__),
+        "torch_path": os.path.realpath(os.path.dirname(torch.__file__)),
         "python": sys.implementation.cache_tag or platform.python_version(),
+        "python_include": sysconfig.get_paths().get("include", ""),
         "machine": platform.machine(),
         "cxx": os.environ.get("CXX", "c++"),
     }

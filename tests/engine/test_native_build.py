@@ -18,7 +18,14 @@ from sparsesplat.engine.errors import RasterError
 from sparsesplat.engine.native_build import NativeExtension, build_key, stage_sources
 from sparsesplat.engine.raster import build as raster_build
 
-TOOLCHAIN = {"torch": "2.13.0", "python": "cpython-311", "machine": "x86_64", "cxx": "c++"}
+TOOLCHAIN = {
+    "torch": "2.13.0",
+    "torch_path": "/venv/lib/python3.11/site-packages/torch",
+    "python": "cpython-311",
+    "python_include": "/usr/include/python3.11",
+    "machine": "x86_64",
+    "cxx": "c++",
+}
 
 
 def _tree(root: Path, files: dict[str, str]) -> Path:
@@ -44,10 +51,11 @@ def test_same_sources_same_key_wherever_they_live(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     "change",
-    ["source byte", "header", "new header", "cflags", "ldflags", "torch", "compiler"],
+    ["source byte", "header", "new header", "cflags", "ldflags", "torch", "venv", "compiler"],
 )
 def test_any_change_gives_another_key(tmp_path: Path, change: str) -> None:
-    """A changed source, header or flag, or another torch or compiler, builds afresh."""
+    """A changed source, header or flag, another torch or compiler, or another virtual
+    environment (its paths are in the build commands) builds afresh."""
     src = _tree(tmp_path / "cpu", FILES)
     cflags, ldflags, toolchain = ["-O3"], ["-fopenmp"], dict(TOOLCHAIN)
 
@@ -68,6 +76,8 @@ def test_any_change_gives_another_key(tmp_path: Path, change: str) -> None:
         ldflags.append("-lm")
     elif change == "torch":
         toolchain["torch"] = "2.14.0"
+    elif change == "venv":
+        toolchain["torch_path"] = "/elsewhere/.venv/lib/python3.11/site-packages/torch"
     else:
         toolchain["cxx"] = "clang++"
     assert key() != before, change
