@@ -33,13 +33,10 @@ import logging
 import os
 import signal
 import threading
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import FrameType
-from typing import Any, TypeVar
+from typing import Any
 
-import sqlalchemy as sa
 from celery.signals import worker_process_init, worker_process_shutdown, worker_shutting_down
 
 from sparsesplat.api.jobs import JobState
@@ -48,19 +45,15 @@ from sparsesplat.api.settings import Settings, load_settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.broker import TRAIN_TASK, make_celery, send_job
 from sparsesplat.api.store.database import make_engine
-from sparsesplat.api.store.jobs import JobStore
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
 
 settings = load_settings()
 app = make_celery(settings, "sparsesplat-worker")
-
-T = TypeVar("T")
-PATIENT_RETRY_S = 0.5
-"""Seconds between retries of a job's write while the database is unreachable."""
 
 
 @dataclass
@@ -116,50 +109,6 @@ class PoolProcess:
         except Exception:
             log.warning("could not unregister the worker", exc_info=True)
         self.engine.dispose()
-
-
-class PatientJobStore(JobStore):
-    """The job store a running job writes through: a write that fails because the database
-    cannot be reached is retried for up to ``patience_s`` (the lease), so a restart or
-    fail-over of PostgreSQL pauses the job rather than failing its attempt. Past the lease the
-    job has been re-queued anyway, and the write fails as before."""
-
-    def __init__(self, engine: sa.Engine, max_attempts: int, patience_s: float) -> None:
-        """Retry writes for up to ``patience_s`` seconds."""
-        super().__init__(engine, max_attempts)
-        self.patience_s = patience_s
-
-    def _patiently(self, write: Callable[[], T]) -> T:
-        deadline = time.monotonic() + self.patience_s
-        while True:
-            try:
-                return write()
-            except sa.exc.OperationalError:
-                if time.monotonic() > deadline:
-                    raise
-                log.warning("database unreachable; retrying the write")
-                time.sleep(PATIENT_RETRY_S)
-
-    def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
-        """``JobStore.add_event``, retried while the database is away."""
-        return self._patiently(lambda: JobStore.add_event(self, job_id, type_, data))
-
-    def finish(
-        self,
-        job_id: str,
-        worker_id: str,
-        state: JobState,
-        message: str = "",
-        result: dict[str, Any] | None = None,
-    ) -> bool:
-        """``JobStore.finish``, retried while the database is away."""
-        return self._patiently(
-            lambda: JobStore.finish(self, job_id, worker_id, state, message, result)
-        )
-
-    def release(self, job_id: str, worker_id: str, message: str) -> None:
-        """``JobStore.release``, retried while the database is away."""
-        self._patiently(lambda: JobStore.release(self, job_id, worker_id, message))
 
 
 _process: PoolProcess | None = None

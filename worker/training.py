@@ -6,21 +6,24 @@ and SIGINT stop it gracefully: a running job checkpoints and goes back to the qu
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
 import threading
 from types import FrameType
 
+import sqlalchemy as sa
+
 from sparsesplat.api.jobs import JobState
 from sparsesplat.api.logs import job_context
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.database import make_engine
-from sparsesplat.api.store.jobs import JobStore
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
 
@@ -33,7 +36,9 @@ class TrainingWorker:
         assert settings.database_url is not None
         self.settings = settings
         self.engine = make_engine(settings.database_url)
-        self.store = JobStore(self.engine, settings.max_attempts)
+        # A running job's writes wait out a database outage (up to its lease) instead of
+        # failing the attempt: the same store the Celery worker uses.
+        self.store = PatientJobStore(self.engine, settings.max_attempts, settings.lease_s)
         self.storage = Storage(settings.data_dir)
         self.registry = WorkerRegistry(self.engine)
         self.worker_id = new_worker_id("train")
@@ -58,13 +63,21 @@ class TrainingWorker:
                 if os.getppid() != parent:  # the supervisor died: do not linger as an orphan
                     log.warning("parent process gone; stopping")
                     break
-                self.registry.beat(self.worker_id)
-                claim = self.store.claim(self.worker_id, self.settings.lease_s)
+                try:
+                    self.registry.beat(self.worker_id)
+                    claim = self.store.claim(self.worker_id, self.settings.lease_s)
+                except sa.exc.OperationalError:
+                    # The database is restarting: wait and poll again rather than exit (the
+                    # supervisor would restart the process, paying torch's import again).
+                    log.warning("database unreachable; waiting to claim", exc_info=True)
+                    self._stop.wait(self.settings.poll_s)
+                    continue
                 if claim is None:
                     self._stop.wait(self.settings.poll_s)
                     continue
                 done += 1
-                self.registry.beat(self.worker_id, claim.job_id)
+                with contextlib.suppress(sa.exc.OperationalError):
+                    self.registry.beat(self.worker_id, claim.job_id)
                 with job_context(claim.job_id):
                     log.info("job claimed", extra={"attempt": claim.attempt})
                     self.current = JobHeartbeat(
@@ -81,7 +94,10 @@ class TrainingWorker:
                         )  # fmt: skip
                     log.info("job ended", extra={"state": outcome.state.value})
         finally:
-            self.registry.unregister(self.worker_id)
+            try:
+                self.registry.unregister(self.worker_id)
+            except sa.exc.OperationalError:  # its registration expires by itself
+                log.warning("could not unregister the worker", exc_info=True)
         return done
 
     def _prepare_process(self) -> None:
