@@ -6,7 +6,16 @@ and record views, iterations, seconds, Gaussians, PSNR, SSIM, LPIPS and AVGE. Va
 
 - ``full``: the preset as is (its default depth prior);
 - ``no_depth``: the same without depth regularization (``depth_prior='none'``);
-- ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...).
+- ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...);
+- ``set:FIELD=JSON+FIELD=JSON``: the preset with these TrainConfig overrides (one part
+  switched on or off, a schedule, ...), e.g. ``set:iterations=1500`` or
+  ``set:depth_prior="none"+color_model="sh"``.
+
+``--seeds 0,1,2`` trains every entry once per seed; the summary table gives the mean and
+standard deviation over seeds (run-to-run spread with 3 views is about 1 dB, as large as many
+effects). Each row also records the best interim held-out PSNR and the training seconds at
+which it was first reached (error against run time decides schedules). ``--merge`` combines
+result files written by sweeps run in parallel.
 
 A variant whose effective configuration equals one already trained for that scene (``full``
 and ``prior:<preset default>``) reuses that run's row instead of training twice.
@@ -35,6 +44,7 @@ from sparsesplat.engine.errors import PriorError
 COLUMNS = [
     "scene",
     "variant",
+    "seed",
     "views",
     "iterations",
     "seconds",
@@ -43,8 +53,16 @@ COLUMNS = [
     "ssim",
     "lpips",
     "avge",
+    "best_psnr",
+    "best_at_s",
 ]
 """Table columns, in order (rows also carry prior, format, sh_baking_psnr, wall_s, error)."""
+
+SUMMARY_METRICS = ("psnr", "ssim", "lpips", "seconds", "gaussians", "best_psnr", "best_at_s")
+"""Figures averaged over seeds in the summary table."""
+
+SUMMARY_COLUMNS = ["scene", "variant", "views", "iterations", "seeds", *SUMMARY_METRICS]
+"""Summary table columns (each metric as ``mean ± std`` over seeds)."""
 
 DEFAULT_VARIANTS = ("full", "no_depth", "prior:pydnet", "prior:plane_sweep")
 """Variants run when ``--variants`` is not given."""
@@ -97,20 +115,91 @@ def find_scenes(roots: Sequence[Path], max_depth: int = 3) -> list[Path]:
     return sorted(dict.fromkeys(found))
 
 
-def variant_config(base: Any, variant: str) -> Any:
-    """The config of ``variant`` derived from the preset config ``base``."""
+def variant_overrides(variant: str) -> dict[str, Any]:
+    """The TrainConfig overrides that turn a preset into ``variant``."""
     if variant == "full":
-        return base
+        return {}
     if variant == "no_depth":
-        return dataclasses.replace(base, depth_prior="none")
-    kind, _, prior = variant.partition(":")
-    if kind == "prior" and prior:
-        return dataclasses.replace(base, depth_prior=prior)
-    raise SystemExit(f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND)")
+        return {"depth_prior": "none"}
+    kind, _, rest = variant.partition(":")
+    if kind == "prior" and rest:
+        return {"depth_prior": rest}
+    if kind == "set" and rest:
+        overrides: dict[str, Any] = {}
+        for item in rest.split("+"):
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise SystemExit(f"bench-quality: variant {variant!r}: expected set:FIELD=JSON")
+            try:
+                overrides[key] = json.loads(value)
+            except json.JSONDecodeError:
+                overrides[key] = value
+        return overrides
+    raise SystemExit(
+        f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND, set:FIELD=JSON)"
+    )
+
+
+def variant_config(base: Any, variant: str) -> Any:
+    """The config of ``variant`` derived from the preset config ``base`` (validated)."""
+    from sparsesplat.engine.train import preset
+
+    overrides = variant_overrides(variant)
+    if not overrides:
+        return base
+    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+    fields.pop("preset")
+    return preset(base.preset, **{**fields, **overrides})
 
 
 def _entry_key(row: dict[str, Any]) -> tuple[Any, ...]:
-    return (row["scene"], row["variant"], row["views"], row["iterations"])
+    return (row["scene"], row["variant"], row["views"], row["iterations"], row.get("seed", 0))
+
+
+def best_error(records: list[dict[str, Any]]) -> tuple[float | None, float | None]:
+    """The best held-out PSNR in an error-vs-time series and the training seconds at which it
+    was first reached (interim records may score a subset of the held-out views)."""
+    best: tuple[float | None, float | None] = (None, None)
+    for rec in records:
+        value = rec.get("psnr")
+        if value is not None and (best[0] is None or value > best[0]):
+            best = (float(value), float(rec.get("elapsed_s") or 0.0))
+    return best
+
+
+def _mean_std(values: list[float]) -> str:
+    if not values:
+        return ""
+    mean = sum(values) / len(values)
+    if len(values) == 1:
+        return f"{mean:.4g}"
+    var = sum((v - mean) ** 2 for v in values) / (len(values) - 1)
+    return f"{mean:.4g} ± {var**0.5:.2g}"
+
+
+def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (scene, variant, views, iterations): each metric's mean ± sample standard
+    deviation over the seeds that trained without error."""
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for row in rows:
+        if not row.get("error"):
+            key = (row["scene"], row["variant"], row["views"], row["iterations"])
+            groups.setdefault(key, []).append(row)
+    out = []
+    for (scene, variant, views, iterations), members in groups.items():
+        summary: dict[str, Any] = {
+            "scene": scene,
+            "variant": variant,
+            "views": views,
+            "iterations": iterations,
+            "seeds": ",".join(str(r.get("seed", 0)) for r in members),
+        }
+        for metric in SUMMARY_METRICS:
+            values = [float(r[metric]) for r in members if r.get(metric) is not None]
+            summary[metric] = _mean_std(values)
+            summary[f"{metric}_values"] = values
+        out.append(summary)
+    return out
 
 
 def _load_rows(path: Path) -> list[dict[str, Any]]:
@@ -124,7 +213,12 @@ def _load_rows(path: Path) -> list[dict[str, Any]]:
 def _save(path: Path, rows: list[dict[str, Any]]) -> None:
     """Write the results file atomically in the bench-results shape."""
     info = machine_info()
-    payload = {"machine": info, "threads": info.get("torch_threads"), "rows": rows}
+    payload = {
+        "machine": info,
+        "threads": info.get("torch_threads"),
+        "rows": rows,
+        "summary": summarize(rows),
+    }
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(payload, indent=2, default=str) + "\n")
@@ -171,6 +265,7 @@ def run_entry(
         "prior": config.depth_prior if config.uses_depth else "none",
         "views": len(scene.train),
         "iterations": config.iterations,
+        "seed": config.seed,
     }
     t0 = time.perf_counter()
     try:
@@ -180,7 +275,11 @@ def run_entry(
         row.update(error=f"{type(exc).__name__}: {exc}", wall_s=time.perf_counter() - t0)
         return row
     m = result.metrics
+    best_psnr, best_at_s = best_error(result.records)
     row.update(
+        seed=config.seed,
+        best_psnr=best_psnr,
+        best_at_s=best_at_s,
         seconds=result.seconds,
         gaussians=result.n_gaussians,
         psnr=m.get("psnr"),
@@ -201,7 +300,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--variants",
         default=",".join(DEFAULT_VARIANTS),
-        help="comma list of full, no_depth, prior:KIND",
+        help="comma list of full, no_depth, prior:KIND, set:FIELD=JSON+FIELD=JSON",
     )
     parser.add_argument("--iterations", type=int, default=None, help="override (scales schedule)")
     parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")
@@ -209,13 +308,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runs-dir", type=Path, default=None, help="per-run outputs")
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    parser.add_argument("--seed", type=int, default=0, help="trainer seed")
+    parser.add_argument("--seeds", default="0", help="comma list of trainer seeds, e.g. 0,1,2")
     parser.add_argument("--downscale", type=int, default=1, help="extra image shrink (smoke runs)")
     parser.add_argument(
         "--eval-max-views", type=int, default=4, help="held-out views per interim eval"
     )
     parser.add_argument("--no-export", action="store_true", help="skip .ply/.splat export")
     parser.add_argument("--fresh", action="store_true", help="retrain entries already in --out")
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        type=Path,
+        default=None,
+        help="combine these result files into --out and print the summary (no training)",
+    )
+
+
+def merge(paths: Sequence[Path], out: Path) -> int:
+    """Combine result files (later files win on the same entry) into ``out``; print the
+    summary."""
+    rows: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for path in paths:
+        for row in _load_rows(path):
+            rows[_entry_key(row)] = row
+    _save(out, list(rows.values()))
+    print(format_table(summarize(list(rows.values())), SUMMARY_COLUMNS))
+    print(f"# wrote {out}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -229,6 +348,8 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     use_shared_models()
     out = args.out or results_dir() / "quality.json"
+    if args.merge:
+        return merge(args.merge, out)
     runs_dir = args.runs_dir or out.parent / "quality-runs"
     roots = list(args.paths) or [default_data_root()]
     scenes = find_scenes(roots)
@@ -236,6 +357,10 @@ def run(args: argparse.Namespace) -> int:
     if wanted:
         scenes = [p for p in scenes if p.name in wanted]
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        raise SystemExit(f"bench-quality: --seeds {args.seeds!r}: expected integers") from None
     if not scenes:
         print(f"bench-quality: no scenes found under {', '.join(map(str, roots))}")
         return 1
@@ -246,50 +371,55 @@ def run(args: argparse.Namespace) -> int:
     failed = 0
     for scene_path in scenes:
         scene = load_scene(scene_path, views=args.views, downscale=args.downscale)
-        base = preset(PRESET_OF_FORMAT.get(scene.format, "default"), seed=args.seed)
-        base = dataclasses.replace(
-            base,
-            eval_max_views=args.eval_max_views,
-            export=not args.no_export,
-            checkpoint_interval_s=0.0,
-        )
-        if args.iterations:
-            base = base.with_iterations(args.iterations)
-        trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> row of this scene
-        for variant in variants:
-            config = variant_config(base, variant)
-            key = (scene.name, variant, len(scene.train), config.iterations)
-            if key in done:
-                print(f"[skip] {scene.name} {variant}: already in {out}", flush=True)
-                continue
-            ident = json.dumps(config.to_dict(), sort_keys=True, default=str)
-            if ident in trained:
-                row = dict(trained[ident], variant=variant, same_run_as=trained[ident]["variant"])
-            else:
-                print(f"[run] {scene.name} {variant} ({config.iterations} it)", flush=True)
-                row = run_entry(
-                    scene_path,
-                    scene,
-                    variant,
-                    config,
-                    priors,
-                    runs_dir / scene.name / variant.replace(":", "_"),
-                    args.device,
+        for seed in seeds:
+            base = preset(PRESET_OF_FORMAT.get(scene.format, "default"), seed=seed)
+            trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row
+            for variant in variants:
+                config = dataclasses.replace(
+                    variant_config(base, variant),
+                    eval_max_views=args.eval_max_views,
+                    export=not args.no_export,
+                    checkpoint_interval_s=0.0,
                 )
-                if row.get("error"):
-                    failed += 1
-                    print(f"[fail] {scene.name} {variant}: {row['error']}", flush=True)
+                if args.iterations:
+                    config = config.with_iterations(args.iterations)
+                key = (scene.name, variant, len(scene.train), config.iterations, seed)
+                if key in done:
+                    print(f"[skip] {scene.name} {variant} seed {seed}: already in {out}")
+                    continue
+                ident = json.dumps(config.to_dict(), sort_keys=True, default=str)
+                if ident in trained:
+                    row = dict(
+                        trained[ident], variant=variant, same_run_as=trained[ident]["variant"]
+                    )
                 else:
-                    trained[ident] = row
-            rows = [r for r in rows if _entry_key(r) != key] + [row]
-            _save(out, rows)  # partial results after every entry: a sweep can stop any time
-            print(format_table([row], COLUMNS), flush=True)
+                    print(f"[run] {scene.name} {variant} seed {seed} ({config.iterations} it)")
+                    sys.stdout.flush()
+                    name = variant.replace(":", "_").replace("=", "-").replace("+", "_")
+                    row = run_entry(
+                        scene_path,
+                        scene,
+                        variant,
+                        config,
+                        priors,
+                        runs_dir / scene.name / f"{name}_seed{seed}",
+                        args.device,
+                    )
+                    if row.get("error"):
+                        failed += 1
+                        print(f"[fail] {scene.name} {variant}: {row['error']}", flush=True)
+                    else:
+                        trained[ident] = row
+                rows = [r for r in rows if _entry_key(r) != key] + [row]
+                _save(out, rows)  # partial results after every entry: a sweep can stop any time
+                print(format_table([row], COLUMNS), flush=True)
     info = machine_info()
     print(
         f"# quality on {info['cpu']} ({info['cores']} cores, "
         f"torch threads {info.get('torch_threads')})"
     )
     print(format_table(rows, COLUMNS))
+    print(format_table(summarize(rows), SUMMARY_COLUMNS))
     print(f"# wrote {out}")
     return 1 if failed else 0
 

@@ -78,3 +78,48 @@ def test_resume_skips_finished_and_reuses_identical_configs(
     assert quality.run(parser.parse_args(argv)) == 1  # the failed entry is retried, fails again
     assert calls == [("b", "no_depth")]
     assert len(json.loads(out.read_text())["rows"]) == 6
+
+
+def test_set_variants_override_validated_fields() -> None:
+    base = preset("llff")
+    config = quality.variant_config(base, 'set:lambda_dssim=0.3+color_model="sh"')
+    assert (config.lambda_dssim, config.color_model) == (0.3, "sh")
+    assert config.iterations == base.iterations and config.preset == "llff"
+    from sparsesplat.engine.train.config import ConfigError
+
+    with pytest.raises(ConfigError, match="lambda_dsim"):
+        quality.variant_config(base, "set:lambda_dsim=0.3")
+    with pytest.raises(SystemExit, match="FIELD=JSON"):
+        quality.variant_config(base, "set:lambda_dssim")
+
+
+def test_best_error_is_the_first_time_the_best_psnr_was_reached() -> None:
+    records = [
+        {"psnr": 10.0, "elapsed_s": 0.0},
+        {"psnr": 19.0, "elapsed_s": 30.0},
+        {"psnr": None, "elapsed_s": 40.0},
+        {"psnr": 19.0, "elapsed_s": 60.0},
+        {"psnr": 18.5, "elapsed_s": 90.0},
+    ]
+    assert quality.best_error(records) == (19.0, 30.0)
+    assert quality.best_error([]) == (None, None)
+
+
+def test_summary_is_mean_and_sample_std_over_seeds(tmp_path: Path) -> None:
+    def row(seed: int, psnr: float, **extra: Any) -> dict[str, Any]:
+        base = {"scene": "a", "variant": "full", "views": 3, "iterations": 10, "seed": seed}
+        return base | {"psnr": psnr} | extra
+
+    rows = [row(0, 18.0), row(1, 20.0), row(2, 22.0), row(3, 99.0, error="boom")]
+    (summary,) = quality.summarize(rows)
+    assert summary["seeds"] == "0,1,2"
+    assert summary["psnr"] == "20 ± 2"  # sample std of 18, 20, 22 is 2
+    assert summary["psnr_values"] == [18.0, 20.0, 22.0]
+    # merging two partial result files (two sweeps run side by side) keeps every seed
+    for i, part in enumerate((rows[:2], rows[2:3])):
+        (tmp_path / f"part{i}.json").write_text(json.dumps({"rows": part}))
+    out = tmp_path / "merged.json"
+    assert quality.merge([tmp_path / "part0.json", tmp_path / "part1.json"], out) == 0
+    merged = json.loads(out.read_text())
+    assert sorted(r["seed"] for r in merged["rows"]) == [0, 1, 2]
+    assert merged["summary"][0]["psnr"] == "20 ± 2"
