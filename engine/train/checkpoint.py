@@ -77,7 +77,7 @@ class TrainedModel:
     def render(self, camera: Camera, background: Tensor | None = None) -> RasterOutput:
         """Render one view: (3, H, W) image, depth, alpha."""
         from sparsesplat.engine.raster import rasterize
-        from sparsesplat.engine.train.trainer import _render_model
+        from sparsesplat.engine.train.recorder import render_model
 
         cfg = self.config
         bg = self.background if background is None else torch.as_tensor(background).float()
@@ -87,7 +87,7 @@ class TrainedModel:
         )
 
         cam = camera.to(self.device, torch.float32)
-        return _render_model(self.gaussians, self.color, cam, bg.to(self.device), raster, self._geo)
+        return render_model(self.gaussians, self.color, cam, bg.to(self.device), raster, self._geo)
 
     def color_fn(self):  # type: ignore[no-untyped-def]
         """Per-Gaussian colours for arbitrary unit directions (for SH baking)."""

@@ -1,0 +1,229 @@
+"""DNGaussian's depth regulariser (dngaussian-method.md §1.5-§1.6): the hard and soft depth
+passes with Global-Local depth normalization against a monocular prior.
+
+Each pass is its own forward/backward and its own step of the run's shared Adam optimizer
+(``zero_grad(set_to_none=True)`` after, so a pass moves only what it reaches):
+
+1. hard depth: opacity ``hard_opacity`` everywhere, scales/rotations detached → centres move;
+2. soft depth: centres/scales/rotations detached → only opacities move; after
+   ``soft_depth_start`` and, on DTU, only while the EMA of the hard loss is below a gate.
+
+The part is constructed only when the config uses depth; it prepares the priors once (shape
+checks, the empty-background edit, the [0, 257] guides of the smoothness weights).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
+from sparsesplat.engine.losses import edge_aware_smoothness, global_local_depth_loss
+from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.guard import DivergenceGuard
+from sparsesplat.engine.train.parts import Raster, StageTimer, TrainView
+
+HARD_EMA_DECAY = 0.9
+"""Weight of the previous value in the running mean of the hard-depth loss (the DTU gate)."""
+
+
+@dataclass(frozen=True)
+class DepthSettings:
+    """The depth passes' weights and schedules (from the flat :class:`TrainConfig`)."""
+
+    prior: str
+    """The prior kind (quoted in error messages)."""
+    hard: bool
+    """Run the hard-depth pass."""
+    soft: bool
+    """Run the soft-depth pass."""
+    hard_opacity: float
+    """Constant opacity of the hard-depth pass."""
+    hard_start: int
+    """Hard depth runs for iterations > this."""
+    soft_start: int
+    """Soft depth runs for iterations > this."""
+    every: int
+    """The passes run every n-th iteration."""
+    until: int | None
+    """The passes stop at this iteration; None = never."""
+    soft_ema_gate: float | None
+    """A soft step is taken only while the hard loss's EMA is below this; None = always."""
+    patch_range: tuple[int, int]
+    """Smallest and largest patch side of the local normalization (inclusive)."""
+    error_tolerance: float
+    """Margin of the error-tolerant L2."""
+    global_weight: float
+    """Weight of the global-normalization term."""
+    local_weight: float
+    """Weight of the local-normalization term."""
+    smooth_weight: float
+    """Weight of the prior-edge-aware depth smoothness (0 = off)."""
+    smooth_start: int
+    """Smoothness applies for iterations > this."""
+    empty_background: bool
+    """Set the prior to its nearest value on pixels showing the pure background."""
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> DepthSettings:
+        """The depth part of ``cfg``."""
+        return cls(
+            prior=cfg.depth_prior,
+            hard=cfg.hard_depth,
+            soft=cfg.soft_depth,
+            hard_opacity=cfg.hard_opacity,
+            hard_start=cfg.hard_depth_start,
+            soft_start=cfg.soft_depth_start,
+            every=cfg.depth_every,
+            until=cfg.depth_until,
+            soft_ema_gate=cfg.soft_depth_ema_gate,
+            patch_range=(cfg.patch_min, cfg.patch_max),
+            error_tolerance=cfg.error_tolerance,
+            global_weight=cfg.depth_global_weight,
+            local_weight=cfg.depth_local_weight,
+            smooth_weight=cfg.depth_smooth_weight,
+            smooth_start=cfg.depth_smooth_start,
+            empty_background=cfg.depth_empty_background,
+        )
+
+
+def empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tensor) -> Tensor:
+    """``prior`` (H, W) with the pixels where ``image`` (3, H, W) equals ``background`` to
+    within half an 8-bit step set to the prior's smallest (nearest) value elsewhere."""
+    empty = ((image - background.view(3, 1, 1)).abs() <= 0.5 / 255).all(dim=0)
+    if not bool(empty.any()) or bool(empty.all()):
+        return prior
+    return torch.where(empty, prior[~empty].min(), prior)
+
+
+class DepthRegularizer:
+    """The hard and soft depth passes, their schedules and the hard-loss EMA gate.
+
+    Hook: :meth:`step_pre_photometric` (after the view is drawn, before the photometric pass;
+    takes its own optimizer steps)."""
+
+    def __init__(
+        self,
+        settings: DepthSettings,
+        priors: list[Any] | None,
+        images: list[Tensor],
+        background: Tensor,
+        view_names: list[str],
+        raster: Raster,
+        generator: torch.Generator,
+    ) -> None:
+        """Check and prepare ``priors`` (one PriorDepth or (H, W) tensor per training view,
+        aligned with ``images`` (3, H, W)); SceneError names the view of a bad one."""
+        self.settings = settings
+        self.raster = raster
+        self.generator = generator
+        if priors is None or len(priors) != len(images):
+            got = "none" if priors is None else str(len(priors))
+            raise SceneError(
+                f"priors: depth_prior={settings.prior!r} needs one prior per training view "
+                f"({len(images)}), got {got}"
+            )
+        self.priors: list[Tensor] = []
+        """The prepared (H, W) priors, one per training view."""
+        self.smooth_guides: list[Tensor] = []
+        """The priors on the [0, 257] scale the reference's smoothness weights see."""
+        for i, p in enumerate(priors):
+            d = torch.as_tensor(getattr(p, "depth", p), dtype=torch.float32).to(images[i].device)
+            h, w = images[i].shape[1:]
+            if d.shape[-2:] != (h, w) or not bool(torch.isfinite(d).all()):
+                raise SceneError(
+                    f"priors[{i}]: depth must be finite ({h}, {w}) for view "
+                    f"{view_names[i]!r}, got shape {tuple(d.shape)}"
+                )
+            d = d.reshape(h, w)
+            if settings.empty_background:
+                d = empty_background_to_nearest(d, images[i], background)
+            self.priors.append(d)
+            span = float(d.max() - d.min())
+            self.smooth_guides.append((d - d.min()) / span * 257.0 if span > 0 else d * 0)
+        self.hard_logit = float(inverse_sigmoid(torch.tensor(settings.hard_opacity)))
+        """The hard pass's constant opacity as a logit."""
+        self.hard_ema: float | None = None
+        """Running mean of the hard-depth loss (None before the first hard step)."""
+
+    def step_pre_photometric(
+        self,
+        iteration: int,
+        gaussians: Gaussians,
+        optimizer: torch.optim.Optimizer,
+        view: TrainView,
+        extent: float,
+        guard: DivergenceGuard,
+        timer: StageTimer,
+    ) -> None:
+        """The iteration's hard and soft passes, each with its own optimizer step, when the
+        schedules say so."""
+        s, g, it = self.settings, gaussians, iteration
+        if it % s.every != 0 or (s.until is not None and it >= s.until):
+            return
+        n = len(g)
+        empty = g.means.new_zeros(n, 0)
+        if s.hard and it > s.hard_start:
+            hard = torch.full((n,), self.hard_logit, device=g.means.device)
+            out = self.raster(
+                g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, view.camera, None
+            )
+            loss = self.depth_loss(out.depth, view.index, iteration, extent)
+            guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
+            loss.backward()
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+            hv = float(loss.detach())
+            ema = self.hard_ema
+            self.hard_ema = hv if ema is None else HARD_EMA_DECAY * ema + 0.1 * hv
+            timer.tick("hard_depth")
+        gate_open = s.soft_ema_gate is None or (
+            self.hard_ema is not None and self.hard_ema < s.soft_ema_gate
+        )
+        if s.soft and it > s.soft_start and gate_open:
+            out = self.raster(
+                g.means.detach(),
+                g.log_scales.detach(),
+                g.quats.detach(),
+                g.opacity_logits,
+                empty,
+                view.camera,
+                None,
+            )
+            loss = self.depth_loss(out.depth, view.index, iteration, extent)
+            guard.check_finite(loss.detach(), "the soft-depth loss", iteration)
+            loss.backward()
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+            timer.tick("soft_depth")
+
+    def depth_loss(self, depth: Tensor, index: int, iteration: int, extent: float) -> Tensor:
+        """Global-local depth loss of a rendered ``depth`` against prior ``index``, plus the
+        edge-aware smoothness once it is on (rendered depth in units of the scene extent)."""
+        s = self.settings
+        d = depth.reshape(depth.shape[-2], depth.shape[-1])
+        loss = global_local_depth_loss(
+            d,
+            self.priors[index],
+            s.patch_range,
+            s.error_tolerance,
+            self.generator,
+            s.global_weight,
+            s.local_weight,
+        )
+        if s.smooth_weight > 0 and iteration > s.smooth_start:
+            smooth = edge_aware_smoothness(d / extent, self.smooth_guides[index])
+            loss = loss + s.smooth_weight * smooth
+        return loss
+
+    def state_dict(self) -> dict[str, Any]:
+        """Checkpoint entries (``hard_ema``)."""
+        return {"hard_ema": self.hard_ema}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore from a checkpoint."""
+        self.hard_ema = state.get("hard_ema")

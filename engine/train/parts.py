@@ -1,0 +1,58 @@
+"""What the training loop hands its parts, and the stage timer they report to.
+
+A part (densification, the depth regulariser, the divergence guard, the recorder) owns its
+settings (a frozen dataclass built from the flat :class:`TrainConfig` by ``from_config``), its
+running state (``state_dict`` / ``load_state_dict``, merged into the checkpoint's top level)
+and its hooks; the loop in ``trainer.py`` calls the hooks in the order the method runs them.
+Tensors that a checkpoint load or a densification replaces (the Gaussians, the optimizer) are
+passed to every hook call, never kept by a part.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.raster import RasterOutput
+
+Raster = Callable[[Tensor, Tensor, Tensor, Tensor, Tensor, Camera, Tensor | None], RasterOutput]
+"""``raster(means, log_scales, quats, opacity_logits, features, camera, background)``: the
+run's rasterizer with its near plane, dilation and backend bound."""
+
+
+@dataclass
+class TrainView:
+    """The training view one iteration uses."""
+
+    index: int
+    """Position in the scene's training list (and in the priors)."""
+    camera: Camera
+    """Its camera, on the run's device."""
+    image: Tensor
+    """Its (3, H, W) target."""
+
+
+class StageTimer:
+    """Accumulated seconds per stage of an iteration, when profiling is on (else free)."""
+
+    def __init__(self, enabled: bool) -> None:
+        """``enabled``: ``config.profile``."""
+        self.enabled = enabled
+        self.totals: dict[str, float] = {}
+        """Seconds per stage name, summed over the iterations timed so far."""
+        self._last = time.perf_counter()
+
+    def start(self) -> None:
+        """Start timing the first stage of an iteration."""
+        self._last = time.perf_counter()
+
+    def tick(self, stage: str) -> None:
+        """Charge the time since the previous tick (or :meth:`start`) to ``stage``."""
+        if self.enabled:
+            now = time.perf_counter()
+            self.totals[stage] = self.totals.get(stage, 0.0) + (now - self._last)
+            self._last = now

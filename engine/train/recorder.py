@@ -1,0 +1,378 @@
+"""Recording and export: held-out evaluation, the error-vs-time series, the emptiness check
+(coverage and the constant-background PSNR), and the end-of-run files (exports with SH baking,
+the series, ``metrics.json``).
+
+The recorder observes the model and never changes it; the loop decides when to record.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor
+from sparsesplat.engine.export import (
+    bake_sh,
+    export_ply,
+    export_splat,
+    sh_baking_error,
+)
+from sparsesplat.engine.gaussians import Gaussians
+from sparsesplat.engine.metrics.evaluate import PSNR_CEILING, Evaluator, LpipsMode
+from sparsesplat.engine.metrics.image import masked_psnr, psnr, quantize
+from sparsesplat.engine.raster import RasterOutput
+from sparsesplat.engine.report import write_report
+from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.parts import Raster
+from sparsesplat.engine.train.progress import ProgressRecord
+
+log = logging.getLogger(__name__)
+
+BACKGROUND_MARGIN_DB = 0.5
+"""A held-out PSNR within this of the constant-background image's is no better than an empty
+model (the run warns)."""
+EMPTY_COVERAGE = 0.01
+"""A render whose mean alpha is below this is (nearly) empty."""
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no Infinity/NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def render_model(
+    g: Gaussians,
+    color: ColorModel,
+    cam: Camera,
+    background: Tensor,
+    raster: Raster,
+    geo: Tensor | None,
+) -> RasterOutput:
+    """Render without gradients, with cached geometry features when given (inference path)."""
+    with torch.no_grad():
+        if isinstance(color, NeuralColor):
+            geo = geo if geo is not None else color.geo_features(g)
+            feats = color.colors_cached(geo, g.means, cam.center.to(g.means))
+        else:
+            feats = color.colors(g, cam.center.to(g.means))
+        return raster(
+            g.means, g.log_scales, g.quats, g.opacity_logits, feats, cam, background.to(g.means)
+        )
+
+
+def model_sh(gaussians: Gaussians, color: ColorModel, cameras: list[Camera]) -> Tensor:
+    """(N, K, 3) SH coefficients of the model: exact for SH colour, baked (degree 3, least
+    squares over sphere samples plus the training directions) for neural colour."""
+    if isinstance(color, SHColor):
+        dc = gaussians.params["sh_dc"].detach().cpu()
+        if "sh_rest" in gaussians.params:
+            return torch.cat([dc, gaussians.params["sh_rest"].detach().cpu()], dim=1)
+        return dc
+    means = gaussians.means.detach()
+    centers = torch.stack([c.center.to(means) for c in cameras])
+    view_dirs = torch.nn.functional.normalize(means[:, None, :] - centers[None], dim=-1)
+    return bake_sh(
+        color.color_fn(gaussians),
+        len(gaussians),
+        degree=3,
+        view_dirs=view_dirs.cpu(),
+        device=means.device,
+    )
+
+
+def baking_psnr(
+    g: Gaussians, color: NeuralColor, sh: Tensor, cameras: list[Camera], background: Tensor
+) -> float:
+    """PSNR of the SH-baked model's renders against the neural model's, over ``cameras``."""
+    geo = color.geo_features(g)
+    means = g.means.detach()
+
+    def neural(cam: Camera) -> Tensor:
+        return color.colors_cached(geo, means, cam.center.to(means)).cpu()
+
+    return float(
+        sh_baking_error(
+            means.cpu(),
+            g.log_scales.detach().cpu(),
+            g.quats.detach().cpu(),
+            g.opacity_logits.detach().cpu(),
+            sh,
+            neural,
+            [c.to("cpu") for c in cameras],
+            background.cpu(),
+        )
+    )
+
+
+@dataclass(frozen=True)
+class RecordSettings:
+    """What is recorded and written (from the flat :class:`TrainConfig`)."""
+
+    eval_max_views: int | None
+    """Held-out views scored by an interim evaluation (all of them at the end)."""
+    eval_lpips: bool
+    """Compute LPIPS (and AVGE) when the weights are available."""
+    export: bool
+    """Write .ply/.splat exports at the end."""
+    preset: str
+    """The preset name, copied into the metrics."""
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> RecordSettings:
+        """The recording part of ``cfg``."""
+        return cls(
+            eval_max_views=cfg.eval_max_views,
+            eval_lpips=cfg.eval_lpips,
+            export=cfg.export,
+            preset=cfg.preset,
+        )
+
+
+class Recorder:
+    """Evaluates, keeps the error-vs-time series and writes the run's files.
+
+    Hooks: :meth:`add_train_loss` (every iteration), :meth:`record` (when an evaluation is
+    due and at the end), :meth:`final_metrics` and :meth:`write_outputs` (at the end)."""
+
+    def __init__(
+        self,
+        settings: RecordSettings,
+        scene: Scene,
+        background: Tensor,
+        raster: Raster,
+        out_dir: Path | None,
+    ) -> None:
+        """``scene``: its held-out views are scored; ``background``: the run's (3,) colour."""
+        self.settings = settings
+        self.scene = scene
+        self.background = background
+        self.raster = raster
+        self.out_dir = out_dir
+        self.records: list[dict[str, Any]] = []
+        """The error-vs-time series (ProgressRecord dicts)."""
+        self.view_coverage: dict[str, float] = {}
+        """Mean alpha of each view's render at the last evaluation (by view name)."""
+        self._evaluator: Evaluator | None = None
+        self._loss_sum = 0.0
+        self._loss_count = 0
+        self._background_psnr: float | None = None
+
+    def add_train_loss(self, value: float) -> None:
+        """Count one iteration's photometric loss into the next record's mean."""
+        self._loss_sum += value
+        self._loss_count += 1
+
+    def evaluate(
+        self, gaussians: Gaussians, color: ColorModel, max_views: int | None = None
+    ) -> dict[str, float | None]:
+        """Mean held-out metrics (all None when the scene has no held-out views)."""
+        views = self.scene.test
+        if max_views is not None and len(views) > max_views:
+            # Evenly spaced, so an interim curve samples the whole held-out trajectory.
+            picks = torch.linspace(0, len(views) - 1, max(1, max_views)).round().long()
+            views = [views[int(i)] for i in picks.unique()]
+        if not views:
+            return {"psnr": None, "ssim": None, "lpips": None, "avge": None}
+        if self._evaluator is None:
+            lpips_mode: LpipsMode = "optional" if self.settings.eval_lpips else "off"
+            self._evaluator = Evaluator(lpips_mode=lpips_mode, psnr_ceiling=PSNR_CEILING)
+        geo = color.geo_features(gaussians) if isinstance(color, NeuralColor) else None
+        device = gaussians.means.device
+        scores = []
+        coverage = []
+        with torch.no_grad():
+            for v in views:
+                cam = v.camera.to(device, torch.float32)
+                out = render_model(gaussians, color, cam, self.background, self.raster, geo)
+                image = out.image.permute(1, 2, 0)
+                scores.append(self._evaluator.score_view(image, v.image, v.mask, key=v.name))
+                coverage.append(float(out.alpha.mean()))
+        self.view_coverage = dict(zip([v.name for v in views], coverage, strict=True))
+        return self._evaluator.mean(scores)
+
+    def background_psnr(self) -> float | None:
+        """Mean held-out PSNR of an image filled with the background: what an empty model
+        scores (same protocol as :meth:`evaluate`; None without held-out views)."""
+        if not self.scene.test:
+            return None
+        if self._background_psnr is None:
+            values = []
+            for v in self.scene.test:
+                truth = quantize(v.image)
+                flat = quantize(self.background.cpu().view(1, 1, 3).expand_as(v.image))
+                if v.mask is not None:
+                    value = masked_psnr(flat, truth, v.mask.float().numpy())
+                else:
+                    value = psnr(flat, truth)
+                values.append(min(value, PSNR_CEILING))
+            self._background_psnr = sum(values) / len(values)
+        return self._background_psnr
+
+    def emptiness_warning(self, psnr_db: float | None) -> str | None:
+        """A warning when the last evaluated renders are (nearly) empty or score no better
+        than the constant background, else None."""
+        empty = sorted(n for n, c in self.view_coverage.items() if c < EMPTY_COVERAGE)
+        base = self.background_psnr()
+        problems = []
+        if empty:
+            problems.append(
+                f"{len(empty)} of {len(self.view_coverage)} evaluated views render (nearly) "
+                f"empty (under {EMPTY_COVERAGE:.0%} of pixels covered: {', '.join(empty[:5])})"
+            )
+        if psnr_db is not None and base is not None and psnr_db <= base + BACKGROUND_MARGIN_DB:
+            problems.append(
+                f"held-out PSNR {psnr_db:.2f} dB is no better than a constant background image "
+                f"({base:.2f} dB)"
+            )
+        if not problems:
+            return None
+        return (
+            "; ".join(problems) + ". The model may be empty: check the poses (convention, pose), "
+            "the background and the preset"
+        )
+
+    def record(
+        self,
+        iteration: int,
+        elapsed_s: float,
+        gaussians: Gaussians,
+        color: ColorModel,
+        final: bool = False,
+    ) -> ProgressRecord:
+        """Evaluate and append one record (interim: on at most ``eval_max_views`` views)."""
+        t0 = time.perf_counter()
+        m = self.evaluate(gaussians, color, None if final else self.settings.eval_max_views)
+        rec = ProgressRecord(
+            iteration=iteration,
+            elapsed_s=elapsed_s,
+            train_loss=self._loss_sum / self._loss_count if self._loss_count else None,
+            psnr=m["psnr"],
+            ssim=m["ssim"],
+            lpips=m["lpips"],
+            avge=m["avge"],
+            n_gaussians=len(gaussians),
+            eval_s=time.perf_counter() - t0,
+            final=final,
+        )
+        self._loss_sum, self._loss_count = 0.0, 0
+        self.records.append(rec.to_dict())
+        if self.out_dir is not None and not final:
+            # Keep the on-disk series current so a long run can be followed (and a killed one
+            # still leaves its curve); the PNG is drawn once, at the end.
+            self.write_series(plot=False)
+        return rec
+
+    def final_metrics(
+        self,
+        iteration: int,
+        elapsed_s: float,
+        gaussians: Gaussians,
+        color: ColorModel,
+        stopped: bool,
+    ) -> dict[str, Any]:
+        """The run's metrics from the last record, with coverage and the emptiness warning."""
+        last = self.records[-1] if self.records else {}
+        metrics: dict[str, Any] = {k: last.get(k) for k in ("psnr", "ssim", "lpips", "avge")}
+        metrics.update(
+            seconds=elapsed_s,
+            iterations=iteration,
+            n_gaussians=len(gaussians),
+            preset=self.settings.preset,
+            stopped=stopped,
+            background_psnr=self.background_psnr(),
+        )
+        if not self.scene.test:  # no held-out views: judge emptiness on the training views
+            device = gaussians.means.device
+            with torch.no_grad():
+                self.view_coverage = {
+                    v.name: float(
+                        render_model(
+                            gaussians,
+                            color,
+                            v.camera.to(device, torch.float32),
+                            self.background,
+                            self.raster,
+                            None,
+                        ).alpha.mean()
+                    )
+                    for v in self.scene.train
+                }
+        if self.view_coverage:
+            metrics["coverage"] = sum(self.view_coverage.values()) / len(self.view_coverage)
+        warning = self.emptiness_warning(metrics.get("psnr"))
+        if warning:  # surfaced by the caller (the CLI prints it, the service stores it)
+            log.info("%s: %s", self.scene.name, warning)
+            metrics["warnings"] = [warning]
+        return metrics
+
+    def write_outputs(
+        self,
+        metrics: dict[str, Any],
+        gaussians: Gaussians,
+        color: ColorModel,
+        cameras: list[Camera],
+        stopped: bool,
+    ) -> dict[str, Path]:
+        """Exports (finished runs), the series and ``metrics.json`` in ``out_dir``; adds
+        ``sh_baking_psnr`` to ``metrics`` for neural colour."""
+        assert self.out_dir is not None
+        artifacts: dict[str, Path] = {}
+        if not stopped and self.settings.export:
+            artifacts.update(self.export(metrics, gaussians, color, cameras))
+        artifacts.update(self.write_series())
+        metrics["series"] = self.records
+        path = self.out_dir / "metrics.json"
+        # Valid JSON: no bare Infinity/NaN (non-finite figures are written as null).
+        path.write_text(json.dumps(json_safe(metrics), indent=1, default=str, allow_nan=False))
+        artifacts["metrics"] = path
+        del metrics["series"]
+        return artifacts
+
+    def write_series(self, plot: bool = True) -> dict[str, Path]:
+        """The series as JSON and CSV (and a PNG when ``plot``) in ``out_dir``."""
+        assert self.out_dir is not None
+        paths = write_report(self.records, self.out_dir, plot=plot)
+        return {f"series_{k}": Path(v) for k, v in paths.items()}
+
+    def export(
+        self,
+        metrics: dict[str, Any],
+        gaussians: Gaussians,
+        color: ColorModel,
+        cameras: list[Camera],
+    ) -> dict[str, Path]:
+        """.ply and .splat; neural colours are baked into degree-3 SH first."""
+        assert self.out_dir is not None
+        sh = model_sh(gaussians, color, cameras)
+        g = gaussians
+        args = (
+            g.means.detach().cpu(),
+            g.log_scales.detach().cpu(),
+            g.quats.detach().cpu(),
+            g.opacity_logits.detach().cpu(),
+            sh,
+        )
+        out = {"ply": self.out_dir / "model.ply", "splat": self.out_dir / "model.splat"}
+        export_ply(out["ply"], *args)
+        export_splat(out["splat"], *args)
+        if isinstance(color, NeuralColor):
+            baking = baking_psnr(g, color, sh, cameras, self.background)
+            # Identical renders give +inf: kept at the held-out PSNR ceiling (valid JSON).
+            metrics["sh_baking_psnr"] = min(baking, PSNR_CEILING)
+        return out
