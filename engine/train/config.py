@@ -10,14 +10,21 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import typing
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from sparsesplat.engine.errors import EngineError
 
 
 class ConfigError(EngineError, ValueError):
     """A training configuration value is invalid (the message names the field)."""
+
+
+ColorModelName = Literal["neural", "sh"]
+"""The colour models: DNGaussian's neural field, or per-Gaussian SH (3DGS)."""
+RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
+"""The rasterizer backends ``engine.raster.rasterize`` accepts."""
 
 
 @dataclass
@@ -55,7 +62,7 @@ class TrainConfig:
     """Initial opacity of every Gaussian."""
 
     # -- colour ---------------------------------------------------------------------------
-    color_model: str = "neural"
+    color_model: ColorModelName = "neural"
     """'neural' (hash grid + MLPs, DNGaussian) or 'sh' (per-Gaussian SH, 3DGS)."""
     sh_degree: int = 3
     """Maximum SH degree 0..3 for color_model 'sh' (ignored for 'neural')."""
@@ -208,8 +215,9 @@ class TrainConfig:
     too high) moves more and is stopped with TrainingDiverged naming the group."""
 
     # -- rasterizer -----------------------------------------------------------------------
-    raster_backend: str = "auto"
-    """Rasterizer backend name passed through to ``rasterize``."""
+    raster_backend: RasterBackendName = "auto"
+    """Rasterizer backend passed through to ``rasterize``: 'auto' (CUDA tensors → gsplat,
+    CPU tensors → the native kernel), 'cpu', 'cuda' or 'reference' (dense float64)."""
     raster_near: float | None = None
     """Cull Gaussians with view z below this. The reference rasterizer uses a fixed 0.2 scene
     units; None uses 0.2 x the scene's near bound instead, so the rule follows scene scale."""
@@ -223,8 +231,8 @@ class TrainConfig:
         """Raise :class:`ConfigError` naming the first invalid field; return self."""
         if self.iterations < 1:
             raise ConfigError(f"iterations must be >= 1, got {self.iterations}")
-        if self.color_model not in ("neural", "sh"):
-            raise ConfigError(f"color_model must be 'neural' or 'sh', got {self.color_model!r}")
+        for name, choices in _CHOICES.items():
+            _check_choice(name, getattr(self, name), choices)
         if not 0 <= self.sh_degree <= 3:
             raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
         if not 1 <= self.patch_min <= self.patch_max:
@@ -339,12 +347,45 @@ SCHEDULE_FIELDS = (
 
 
 _FIELD_TYPES = {f.name: str(f.type) for f in dataclasses.fields(TrainConfig)}
+_HINTS = typing.get_type_hints(TrainConfig)
+
+
+def _literal_choices(hint: Any) -> tuple[Any, ...] | None:
+    """The values of a ``Literal`` annotation (also inside ``X | None``), else None."""
+    if typing.get_origin(hint) is Literal:
+        return typing.get_args(hint)
+    for arg in typing.get_args(hint):
+        if typing.get_origin(arg) is Literal:
+            return typing.get_args(arg)
+    return None
+
+
+_CHOICES = {
+    name: choices
+    for name, hint in _HINTS.items()
+    if (choices := _literal_choices(hint)) is not None
+}
+"""Fields that take one of a fixed set of values (``Literal`` annotations) → the values."""
+
+
+def _check_choice(name: str, value: Any, choices: tuple[Any, ...]) -> None:
+    """ConfigError naming field ``name`` unless ``value`` is one of ``choices`` (or None
+    where the field is optional)."""
+    if value is None and type(None) in typing.get_args(_HINTS[name]):
+        return
+    if value not in choices:
+        listed = [repr(c) for c in choices]
+        text = f"{', '.join(listed[:-1])} or {listed[-1]}" if len(listed) > 1 else listed[0]
+        raise ConfigError(f"{name} must be {text}, got {value!r}")
 
 
 def _check_type(name: str, value: Any) -> None:
     """ConfigError unless ``value`` fits the annotated type of field ``name`` (checked loosely:
     ints are floats, lists are tuples; ``background`` is parsed separately)."""
     if name == "background":
+        return
+    if name in _CHOICES:
+        _check_choice(name, value, _CHOICES[name])
         return
     kinds = {k.strip().split("[")[0] for k in _FIELD_TYPES[name].split("|")}
     ok = (

@@ -351,6 +351,17 @@ def test_presets_and_config_errors() -> None:
         preset("llff", color_model="sh", sh_degree=4)
 
 
+def test_fixed_choice_fields_name_the_field_and_the_choices() -> None:
+    """Literal-typed fields accept their values only, from overrides and from construction."""
+    assert preset("llff", color_model="sh", raster_backend="cpu").raster_backend == "cpu"
+    with pytest.raises(ConfigError, match="color_model must be 'neural' or 'sh', got 'rgb'"):
+        preset("llff", color_model="rgb")
+    with pytest.raises(ConfigError, match=r"raster_backend must be .*'reference', got 'gpu'"):
+        preset("llff", raster_backend="gpu")
+    with pytest.raises(ConfigError, match="color_model"):
+        TrainConfig(color_model="rgb").validate()  # type: ignore[arg-type]
+
+
 def test_with_iterations_compresses_the_schedule(seed: int) -> None:
     base = preset("dtu")
     n = random.Random(seed).randrange(100, base.iterations)
