@@ -52,15 +52,17 @@ class SSIMTarget:
         self.window, self.sigma = window, sigma
 
 
-def ssim(
+def gaussian_window_ssim(
     pred: Tensor,
     target: Tensor | SSIMTarget,
     window: int = 11,
     sigma: float = 1.5,
 ) -> Tensor:
-    """3DGS SSIM: 11x11 Gaussian window (sigma 1.5), zero padding, C1=0.01², C2=0.03², mean
-    over all pixels and channels. Inputs (C, H, W) in [0, 1]; ``target`` may be a precomputed
-    :class:`SSIMTarget` (its window and sigma then apply)."""
+    """3DGS's training SSIM: 11x11 Gaussian window (sigma 1.5), zero padding, C1=0.01²,
+    C2=0.03², mean over all pixels and channels; differentiable. Not the paper's evaluation
+    SSIM (scikit-image's 7x7 uniform window on 8-bit images: ``engine.metrics.image.ssim``).
+    Inputs (C, H, W) in [0, 1]; ``target`` may be a precomputed :class:`SSIMTarget` (its
+    window and sigma then apply)."""
     t = target if isinstance(target, SSIMTarget) else SSIMTarget(target, window, sigma)
     c = pred.shape[0]
     x = pred.unsqueeze(0)
@@ -81,7 +83,8 @@ def photometric_loss(
     ``ssim_target``: ``target``'s precomputed SSIM statistics, if the caller keeps them."""
     if lambda_dssim == 0:
         return l1_loss(pred, target)
-    return l1_loss(pred, target) + lambda_dssim * (1.0 - ssim(pred, ssim_target or target))
+    l1 = l1_loss(pred, target)
+    return l1 + lambda_dssim * (1.0 - gaussian_window_ssim(pred, ssim_target or target))
 
 
 def patchify(depth: Tensor, patch: int) -> Tensor:

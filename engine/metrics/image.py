@@ -55,8 +55,9 @@ def psnr(render: Any, gt: Any) -> float:
 
 
 def ssim(render: Any, gt: Any) -> float:
-    """The paper's SSIM: scikit-image ``structural_similarity(channel_axis=2,
-    data_range=1.0)`` on HWC float images (7x7 uniform window, K1 0.01, K2 0.03)."""
+    """The paper's evaluation SSIM: scikit-image ``structural_similarity(channel_axis=2,
+    data_range=1.0)`` on HWC float images (7x7 uniform window, K1 0.01, K2 0.03). Training
+    uses 3DGS's Gaussian-window SSIM instead (``engine.losses.gaussian_window_ssim``)."""
     from skimage.metrics import structural_similarity
 
     a, b = _pair(render, gt)
