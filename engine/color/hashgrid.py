@@ -102,7 +102,8 @@ class HashGrid(nn.Module):
         self.embeddings = nn.Parameter(table * 2 * init_range - init_range)
 
     def _level_tables(self, device: torch.device) -> dict[str, Tensor]:
-        """Per-level constants as tensors (scale, size, offset, dense flag, dense stride)."""
+        """Per-level constants as tensors (scale, size, offset, dense flag, dense stride) and
+        the 8 corner offsets, made once per device (not copied to the GPU on every call)."""
         cache = getattr(self, "_consts", None)
         if cache is None or cache["scale"].device != device:
             cache = {
@@ -113,6 +114,7 @@ class HashGrid(nn.Module):
                 "stride": torch.tensor(
                     [r + 1 for r in self.resolutions], dtype=torch.long, device=device
                 ),
+                "corners": _CORNERS.to(device),
             }
             self._consts = cache
         return cache
@@ -164,7 +166,7 @@ class HashGrid(nn.Module):
         inside = ((x >= 0) & (x <= 1)).all(dim=-1, keepdim=True)
         x = torch.where(inside, x, torch.zeros_like(x))
         c = self._level_tables(x.device)
-        corners = _CORNERS.to(x.device)  # (8, 3)
+        corners = c["corners"]  # (8, 3)
         pos = x[:, None, :] * c["scale"][None, :, None] + 0.5  # (N, L, 3)
         base = torch.floor(pos)
         frac = pos - base
