@@ -249,7 +249,8 @@ class Gaussians:
             new_rows: dict[str, Tensor] = {name: p[clone_mask] for name, p in self.params.items()}
             if n_split:
                 stds = self.scales[split_mask].repeat(split_n, 1)
-                samples = torch.randn(stds.shape, generator=generator, dtype=stds.dtype) * stds
+                samples = torch.randn(stds.shape, generator=generator, dtype=stds.dtype)
+                samples = samples.to(stds.device) * stds
                 rot = quat_to_rotmat(self.rotations[split_mask]).repeat(split_n, 1, 1)
                 split_rows = {
                     name: p[split_mask].repeat(split_n, *([1] * (p.dim() - 1)))
@@ -264,13 +265,13 @@ class Gaussians:
             if n_clone or n_split:
                 self.append(new_rows, optimizer)
             # The split originals are replaced by their samples.
-            keep = torch.ones(len(self), dtype=torch.bool)
+            keep = torch.ones(len(self), dtype=torch.bool, device=self.means.device)
             keep[:n_before] = ~split_mask
             keep &= self.opacity >= min_opacity
             if max_screen_size is not None and max_screen_radius is not None:
                 radius = torch.cat(
                     [max_screen_radius, max_screen_radius.new_zeros(len(self) - n_before)]
-                )
+                ).to(keep.device)
                 keep &= radius <= max_screen_size
             if max_world_size is not None:
                 keep &= self.scales.max(dim=1).values <= max_world_size

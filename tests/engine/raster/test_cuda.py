@@ -128,13 +128,6 @@ def test_neural_color_on_cuda(seed: int) -> None:
         assert err < 1e-3, f"gradient off by {err:.2e} (seed {seed})"
 
 
-@pytest.mark.xfail(
-    raises=RuntimeError,
-    strict=True,
-    reason="engine/gaussians.py densify_and_prune draws the split samples and builds the keep "
-    "mask on the CPU ('Expected all tensors to be on the same device'); drop this mark with "
-    "that fix",
-)
 def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
     """A smoke-scale DNGaussian run on the GPU: densification sees screen gradients, the model
     stays on the GPU, the held-out PSNR is finite, and export (SH baking) works."""
