@@ -8,8 +8,9 @@ configured, the ones too large on screen or in the world) are pruned. At the
 ``opacity_reset_interval`` the 3DGS opacity reset runs.
 
 The gradient accumulators themselves live on :class:`Gaussians` (its table surgery keeps them
-row-aligned); the strategy owns the largest screen radius seen per Gaussian
-(:attr:`DensifyStrategy.max_radii`) and the checkpoint entries of both.
+row-aligned, and they are checkpointed with the model); the strategy owns the largest screen
+radius seen per Gaussian (:attr:`DensifyStrategy.max_radii`). A run that never densifies nor
+cleans (``DensifySettings.active`` false) builds no strategy.
 """
 
 from __future__ import annotations
@@ -61,6 +62,12 @@ class DensifySettings:
     """Cap on the number of Gaussians."""
     clean_iterations: tuple[int, ...]
     """Iterations at which Gaussians invisible from every training view are pruned."""
+
+    @property
+    def active(self) -> bool:
+        """Whether the strategy does anything in a run: statistics (and with them
+        densification and the opacity reset) need an iteration below ``densify_until``."""
+        return self.densify_until > 1 or bool(self.clean_iterations)
 
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> DensifySettings:
@@ -191,18 +198,11 @@ class DensifyStrategy:
             if self.max_radii is not None:
                 self.max_radii = self.max_radii[visible.cpu()]
 
-    def state_dict(self, gaussians: Gaussians) -> dict[str, Any]:
-        """Checkpoint entries: the gradient accumulators and ``max_radii``."""
-        return {
-            "grad_accum": gaussians.grad_accum.cpu(),
-            "grad_count": gaussians.grad_count.cpu(),
-            "max_radii": self.max_radii,
-        }
+    def state_dict(self) -> dict[str, Any]:
+        """Checkpoint entries (``max_radii``; the accumulators are saved with the model)."""
+        return {"max_radii": self.max_radii}
 
-    def load_state_dict(self, state: dict[str, Any], gaussians: Gaussians) -> None:
-        """Restore the entries of :meth:`state_dict` onto ``gaussians`` and self."""
-        dev = gaussians.means.device
-        gaussians.grad_accum = state["grad_accum"].to(dev)
-        gaussians.grad_count = state["grad_count"].to(dev)
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore the entries of :meth:`state_dict`."""
         if state.get("max_radii") is not None:
             self.max_radii = state["max_radii"]

@@ -160,9 +160,11 @@ class Trainer:
                 self.generator,
             )
         self._setup_model()
-        self.densify = DensifyStrategy(
-            DensifySettings.from_config(self.config), self.cameras, self._raster, self.generator
-        )
+        densify = DensifySettings.from_config(self.config)
+        self.densify: DensifyStrategy | None = None
+        """The densification strategy; None when the run never densifies nor cleans."""
+        if densify.active:
+            self.densify = DensifyStrategy(densify, self.cameras, self._raster, self.generator)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),
@@ -365,7 +367,10 @@ class Trainer:
             "raster_near": self.raster_near,
             "background": self.background.cpu(),
             "gaussians": {k: v.detach().cpu() for k, v in g.params.items()},
-            **self.densify.state_dict(g),
+            "grad_accum": g.grad_accum.cpu(),
+            "grad_count": g.grad_count.cpu(),
+            "max_radii": None,
+            **(self.densify.state_dict() if self.densify is not None else {}),
             "color": self.color.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "generator": self.generator.get_state(),
@@ -382,7 +387,10 @@ class Trainer:
         self.elapsed_s = float(state["elapsed_s"])
         self.extent = float(state["extent"])
         self.gaussians = Gaussians({k: v.to(dev) for k, v in state["gaussians"].items()})
-        self.densify.load_state_dict(state, self.gaussians)
+        self.gaussians.grad_accum = state["grad_accum"].to(dev)
+        self.gaussians.grad_count = state["grad_count"].to(dev)
+        if self.densify is not None:
+            self.densify.load_state_dict(state)
         self.color = make_color_model(state["color"])
         if isinstance(self.color, NeuralColor):
             self.color.field.to(dev)
@@ -443,7 +451,9 @@ class Trainer:
         timer.start()
         self._set_position_lr(it)
         self.color.step_hook(it)
-        cleaned = self.densify.step_pre_backward(it, self.gaussians, opt)
+        cleaned = False
+        if self.densify is not None:
+            cleaned = self.densify.step_pre_backward(it, self.gaussians, opt)
         g = self.gaussians
         view = self._next_view()
         timer.tick("setup")
@@ -471,7 +481,10 @@ class Trainer:
             timer.tick("neural_bwd")
         self.recorder.add_train_loss(float(photo.detach()))
 
-        self.densify.step_post_backward(it, g, opt, out, view.camera, cleaned, self.extent, timer)
+        if self.densify is not None:
+            self.densify.step_post_backward(
+                it, g, opt, out, view.camera, cleaned, self.extent, timer
+            )
         before = self.guard.before_step(it, opt, g, self.extent)
         opt.step()
         opt.zero_grad(set_to_none=True)
@@ -524,7 +537,8 @@ class Trainer:
                 if self.out_dir is not None:
                     self._emit(StateChange("checkpointing", self.iteration))
                     self.save_checkpoint()
-        self.densify.finish(self.iteration, self.gaussians, self.optimizer)
+        if self.densify is not None:
+            self.densify.finish(self.iteration, self.gaussians, self.optimizer)
         self._record(final=True)
         return self._finish(stopped=False)
 

@@ -182,6 +182,23 @@ def test_sh_colour_without_depth(tmp_path: Path) -> None:
     assert model.render(scene.test[0].camera).image.shape == (3, 24, 32)
 
 
+def test_parts_a_run_does_not_need_are_not_built(tmp_path: Path) -> None:
+    """No depth: no depth regulariser (its checkpoint entry stays None); no densification and
+    no clean iterations: no strategy, and the run (with a resume) still goes through."""
+    scene, priors = make_scene(seed=5)
+    full = Trainer(scene, small(iterations=6), priors)
+    assert full.depth is not None and full.densify is not None
+    cfg = small(depth_prior="none", densify_until=0, clean_iterations=(), iterations=6)
+    bare = Trainer(scene, cfg, None, tmp_path)
+    assert bare.depth is None and bare.densify is None
+    res = bare.run()
+    assert res.iteration == 6 and res.n_gaussians == 250
+    state = bare.state_dict()
+    assert state["hard_ema"] is None and state["max_radii"] is None
+    resumed = Trainer(scene, cfg.with_iterations(6), None, resume_from=res.artifacts["checkpoint"])
+    assert resumed.iteration == 6 and resumed.densify is None
+
+
 def test_missing_priors_is_a_scene_error() -> None:
     scene, _ = make_scene(seed=7)
     with pytest.raises(SceneError, match="priors"):
