@@ -35,14 +35,9 @@ def exit_code(exc: BaseException) -> int:
     """:data:`EXIT_FAILED` for runs that failed on valid input (training diverged, model
     collapsed, rasterizer build failures), :data:`EXIT_BAD_INPUT` for everything else."""
     from sparsesplat.engine.errors import RasterError, TrainingDiverged
+    from sparsesplat.engine.train import ModelCollapsed
 
-    failed = (TrainingDiverged, RasterError)
-    try:
-        from sparsesplat.engine.train import ModelCollapsed
-
-        failed = (*failed, ModelCollapsed)  # type: ignore[assignment]
-    except ImportError:  # pragma: no cover - the train package is part of the engine
-        pass
+    failed = (TrainingDiverged, RasterError, ModelCollapsed)
     return EXIT_FAILED if isinstance(exc, failed) else EXIT_BAD_INPUT
 
 
