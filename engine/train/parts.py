@@ -6,6 +6,17 @@ running state (``state_dict`` / ``load_state_dict``, merged into the checkpoint'
 and its hooks; the loop in ``trainer.py`` calls the hooks in the order the method runs them.
 Tensors that a checkpoint load or a densification replaces (the Gaussians, the optimizer) are
 passed to every hook call, never kept by a part.
+
+A part a run does not need is not built (the trainer holds None), so a switched-off part
+changes nothing, not even the order of the run's random draws. The loop's order of hooks::
+
+    densify.step_pre_backward      clean-views pruning
+    (draw the view)
+    depth.step_pre_photometric     hard and soft depth passes, own optimizer steps
+    photometric render, loss, guard.check_finite, backward
+    densify.step_post_backward     statistics, densify, opacity reset
+    guard.before_step / optimizer step / guard.after_step
+    recorder.record                when an evaluation is due
 """
 
 from __future__ import annotations
