@@ -25,6 +25,8 @@ ColorModelName = Literal["neural", "sh"]
 """The colour models: DNGaussian's neural field, or per-Gaussian SH (3DGS)."""
 RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
 """The rasterizer backends ``engine.raster.rasterize`` accepts."""
+InitName = Literal["random", "dense"]
+"""Initial Gaussians: a random box, or back-projected confident metric depth."""
 
 
 @dataclass
@@ -60,6 +62,18 @@ class TrainConfig:
     """Upper bound on the automatic point count (CPU budget)."""
     init_opacity: float = 0.1
     """Initial opacity of every Gaussian."""
+    init: InitName = "random"
+    """'random': uniform points in the init box (the reference). 'dense': the training
+    pixels whose metric depth is confident, back-projected (``engine/train/dense_init.py``);
+    the depth is the run's prior when it is metric (plane sweep), else a plane-sweep prior
+    computed for the init (cached under ``out_dir/priors``). SH colour takes the pixel colours
+    as DC. Falls back to 'random' with a warning (``metrics['init']``) when no pixel is
+    confident."""
+    dense_init_points: int | None = None
+    """Number of points drawn for ``init='dense'`` (all confident pixels when fewer); None:
+    the random init's count (``init_points`` or the automatic count)."""
+    dense_init_min_confidence: float = 0.5
+    """Smallest prior confidence of a pixel used by ``init='dense'``."""
 
     # -- colour ---------------------------------------------------------------------------
     color_model: ColorModelName = "neural"
@@ -214,6 +228,39 @@ class TrainConfig:
     units of the scene extent). Sane runs move ~10x less; a blow-up (e.g. learning rates 100x
     too high) moves more and is stopped with TrainingDiverged naming the group."""
 
+    # -- optional parts (all off by default) ----------------------------------------------
+    dropout: bool = False
+    """DropGaussian (``engine/train/dropout.py``): drop each Gaussian from the photometric
+    render with probability ``rate``, compensating the kept opacities by ``1 / (1 - rate)``.
+    Evaluation, export and the depth passes render every Gaussian."""
+    dropout_rate: float = 0.1
+    """The drop rate in [0, 1) reached at the last iteration (progressive) or used throughout."""
+    dropout_progressive: bool = True
+    """Grow the rate linearly from 0 to ``dropout_rate`` over the run (the paper) instead of a
+    constant rate (the authors' snippet)."""
+    dtu_background: bool = False
+    """DTU black-background handling of the reference code (``engine/train/dtu_background.py``):
+    a per-view dark-background mask and the pieces switched by the ``dtu_*`` fields below;
+    thresholds per scan from the scene name."""
+    dtu_blacken_target: bool = True
+    """(with dtu_background) Set the masked target pixels to black in the photometric loss."""
+    dtu_depth_fill: bool = True
+    """(with dtu_background) Fill the masked pixels of rendered and prior depth with their
+    foreground means in the hard and soft depth passes."""
+    dtu_alpha_loss: bool = True
+    """(with dtu_background) A pass of its own (after the soft-depth pass) pushing the rendered
+    alpha on the masked pixels to 0; moves only opacities."""
+    dtu_black_white: bool = True
+    """(with dtu_background) The near-black / near-white Gaussian rule at each densification."""
+    consistency_weight: float = 0.0
+    """Weight of the warp-consistency term (``engine/train/consistency.py``) added to the
+    photometric loss: the partner training view (nearest camera centre) warped into the current
+    one through the rendered depth; 0 = off."""
+    consistency_start: int = 0
+    """The consistency term applies for iterations > this."""
+    consistency_occlusion: bool = True
+    """Render the partner's depth (no gradient) for the term's occlusion check."""
+
     # -- rasterizer -----------------------------------------------------------------------
     raster_backend: RasterBackendName = "auto"
     """Rasterizer backend passed through to ``rasterize``: 'auto' (CUDA tensors → gsplat,
@@ -246,6 +293,12 @@ class TrainConfig:
             raise ConfigError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
         if self.depth_every < 1 or self.densify_interval < 1:
             raise ConfigError("depth_every and densify_interval must be >= 1")
+        if not (math.isfinite(self.dropout_rate) and 0.0 <= self.dropout_rate < 1.0):
+            raise ConfigError(f"dropout_rate must be in [0, 1), got {self.dropout_rate}")
+        if self.dense_init_points is not None and self.dense_init_points < 1:
+            raise ConfigError(f"dense_init_points must be >= 1, got {self.dense_init_points}")
+        if not (math.isfinite(self.consistency_weight) and self.consistency_weight >= 0.0):
+            raise ConfigError(f"consistency_weight must be >= 0, got {self.consistency_weight}")
         if self.eval_max_views is not None and self.eval_max_views < 1:
             raise ConfigError(f"eval_max_views must be >= 1 or None, got {self.eval_max_views}")
         if self.background is not None and (
@@ -342,6 +395,7 @@ SCHEDULE_FIELDS = (
     "depth_smooth_start",
     "sh_degree_interval",
     "opacity_reset_interval",
+    "consistency_start",
 )
 """Fields counted in iterations, scaled by :meth:`TrainConfig.with_iterations`."""
 

@@ -32,6 +32,7 @@ a consistency loss between the full and the dropped render; that loss is not imp
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -39,7 +40,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.raster import RasterOutput
+from sparsesplat.engine.train.config import ConfigError, TrainConfig
 
 OPACITY_CEILING = 0.999
 """Largest compensated opacity handed to the rasterizer (its per-pixel alpha cap)."""
@@ -150,3 +152,57 @@ def draw_dropout(
     else:
         keep = torch.rand(n, generator=generator) >= rate
     return GaussianDropout(keep.to(device), rate)
+
+
+@dataclass(frozen=True)
+class DropoutSettings:
+    """The dropout part of the flat :class:`TrainConfig`."""
+
+    enabled: bool
+    """``config.dropout``: the part is built only when on."""
+    schedule: DropoutSchedule
+    """The rate over training (``dropout_rate``, ``dropout_progressive``)."""
+    total: int
+    """The run's iteration count (the progressive schedule's T)."""
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> DropoutSettings:
+        """The dropout part of ``cfg``."""
+        return cls(
+            enabled=cfg.dropout,
+            schedule=DropoutSchedule(cfg.dropout_rate, cfg.dropout_progressive),
+            total=cfg.iterations,
+        )
+
+
+class PhotometricDropout:
+    """The trainer's dropout part (hook ``photometric_inputs``): one draw per iteration, from
+    the run's generator (checkpointed with the run, so resumed runs replay the same draws).
+    No state of its own."""
+
+    def __init__(self, settings: DropoutSettings, generator: torch.Generator) -> None:
+        """``generator``: the run's CPU generator."""
+        self.settings = settings
+        self.generator = generator
+
+    def draw(self, iteration: int, n: int, device: torch.device | str) -> GaussianDropout | None:
+        """This iteration's draw over ``n`` Gaussians; None when the rate is 0 (nothing drawn)
+        or when the draw keeps no Gaussian (the render then uses every Gaussian, uncompensated,
+        rather than an empty image)."""
+        rate = self.settings.schedule.rate(iteration, self.settings.total)
+        if rate == 0.0:
+            return None
+        drop = draw_dropout(n, rate, self.generator, device)
+        if not bool(drop.keep.any()):
+            return None
+        return drop
+
+
+def scatter_output(drop: GaussianDropout, out: RasterOutput) -> RasterOutput:
+    """``out`` (a render of the kept rows, after its backward) with ``radii`` and ``means2d``
+    (and its ``.grad``) back on all N rows: dropped Gaussians get radius 0 (not visible) and a
+    zero screen gradient, so the densification statistics stay row-aligned with the model."""
+    means2d = drop.scatter(out.means2d.detach())
+    if out.means2d.grad is not None:
+        means2d.grad = drop.scatter(out.means2d.grad)
+    return dataclasses.replace(out, radii=drop.scatter(out.radii), means2d=means2d)

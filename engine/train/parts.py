@@ -10,11 +10,18 @@ passed to every hook call, never kept by a part.
 A part a run does not need is not built (the trainer holds None), so a switched-off part
 changes nothing, not even the order of the run's random draws. The loop's order of hooks::
 
+    (model set-up)                 init_points: random box, or dense_init (init='dense')
     densify.step_pre_backward      clean-views pruning
     (draw the view)
+    dtu.adjust_view                blackened target + background mask (dtu_background)
     depth.step_pre_photometric     hard and soft depth passes, own optimizer steps
-    photometric render, loss, guard.check_finite, backward
-    densify.step_post_backward     statistics, densify, opacity reset
+    dtu.step_pre_photometric       background-alpha pass, own optimizer step
+    dropout.draw                   photometric_inputs: the kept rows (dropout)
+    photometric render, loss
+    consistency.extra_loss         added to the photometric loss (consistency_weight > 0)
+    guard.check_finite, backward
+    scatter_output                 dropout: means2d.grad and radii back on all N rows
+    densify.step_post_backward     statistics, (dtu.black_white), densify, opacity reset
     guard.before_step / optimizer step / guard.after_step
     recorder.record                when an evaluation is due
 """
@@ -28,6 +35,7 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.losses import SSIMTarget
 from sparsesplat.engine.raster import RasterOutput
 
 Raster = Callable[[Tensor, Tensor, Tensor, Tensor, Tensor, Camera, Tensor | None], RasterOutput]
@@ -45,6 +53,10 @@ class TrainView:
     """Its camera, on the run's device."""
     image: Tensor
     """Its (3, H, W) target."""
+    ssim_target: SSIMTarget | None = None
+    """The target's precomputed SSIM statistics (None: computed from ``image``)."""
+    mask: Tensor | None = None
+    """(H, W) bool background mask set by the DTU background part (None without it)."""
 
 
 class StageTimer:

@@ -53,6 +53,7 @@ from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.densify import DensifySettings, DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSettings
+from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
 from sparsesplat.engine.train.guard import DivergenceGuard, GuardSettings
 from sparsesplat.engine.train.parts import StageTimer, TrainView
 from sparsesplat.engine.train.progress import (
@@ -165,6 +166,11 @@ class Trainer:
         """The densification strategy; None when the run never densifies nor cleans."""
         if densify.active:
             self.densify = DensifyStrategy(densify, self.cameras, self._raster, self.generator)
+        dropout = DropoutSettings.from_config(self.config)
+        self.dropout: PhotometricDropout | None = None
+        """DropGaussian on the photometric pass; None unless ``config.dropout``."""
+        if dropout.enabled:
+            self.dropout = PhotometricDropout(dropout, self.generator)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),
@@ -416,7 +422,7 @@ class Trainer:
         if not self.view_stack:
             self.view_stack = torch.randperm(len(self.cameras), generator=self.generator).tolist()
         i = self.view_stack.pop()
-        return TrainView(i, self.cameras[i], self.images[i])
+        return TrainView(i, self.cameras[i], self.images[i], self.ssim_targets[i])
 
     def _set_position_lr(self, iteration: int) -> None:
         cfg = self.config
@@ -435,7 +441,8 @@ class Trainer:
         """(total, photometric): L1 + λ·D-SSIM plus DNGaussian's shape/scale/opacity terms."""
         cfg, g = self.config, self.gaussians
         scales = g.scales
-        photo = photometric_loss(image, view.image, cfg.lambda_dssim, self.ssim_targets[view.index])
+        target = view.ssim_target if view.ssim_target is not None else view.image
+        photo = photometric_loss(image, view.image, cfg.lambda_dssim, target)
         loss = photo
         if cfg.shape_weight:
             loss = loss + cfg.shape_weight * shape_regularizer(scales)
@@ -467,9 +474,18 @@ class Trainer:
         timer.tick("neural_fwd")
         # Profiling splits the colour field's backward from the rasterizer's.
         leaf = colors.detach().requires_grad_(True) if cfg.profile else colors
-        out = self._raster(
-            g.means, g.log_scales, g.quats, g.opacity_logits, leaf, view.camera, self.background
-        )
+        drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
+        if drop is None:
+            inputs = (g.means, g.log_scales, g.quats, g.opacity_logits, leaf)
+        else:  # only the kept rows are rendered, their opacities compensated
+            inputs = (
+                drop.select(g.means),
+                drop.select(g.log_scales),
+                drop.select(g.quats),
+                drop.opacity_logits(g.opacity_logits),
+                drop.select(leaf),
+            )
+        out = self._raster(*inputs, view.camera, self.background)
         timer.tick("photo_render")
         loss, photo = self._photometric_loss(out.image, view)
         self.guard.check_finite(loss.detach(), "the photometric loss", it)
@@ -480,6 +496,8 @@ class Trainer:
             colors.backward(leaf.grad)
             timer.tick("neural_bwd")
         self.recorder.add_train_loss(float(photo.detach()))
+        if drop is not None:
+            out = scatter_output(drop, out)
 
         if self.densify is not None:
             self.densify.step_post_backward(

@@ -77,11 +77,20 @@ def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path, seed: int) -> Non
     assert len(model) == result.n_gaussians
 
 
-def test_resume_matches_uninterrupted_run(tmp_path: Path, seed: int) -> None:
+RESUME_PARTS: dict[str, dict[str, Any]] = {
+    "default": {},
+    # Parts with random draws or state must replay after a resume too.
+    "dropout": {"dropout": True, "dropout_rate": 0.3},
+}
+
+
+@pytest.mark.parametrize("part", list(RESUME_PARTS))
+def test_resume_matches_uninterrupted_run(tmp_path: Path, seed: int, part: str) -> None:
     scene, priors = make_scene(seed=seed)
     # One thread: torch's multi-threaded CPU kernels are not bit-reproducible run to run.
     cfg = small(iterations=30, eval_every=5, seed=seed, densify_from=5, densify_interval=5,
-                densify_until=25, soft_depth_start=8, threads=1)  # fmt: skip
+                densify_until=25, soft_depth_start=8, threads=1,
+                **RESUME_PARTS[part])  # fmt: skip
     full = Trainer(scene, cfg, priors, tmp_path / "full")
     full.run()
 
