@@ -7,6 +7,7 @@ and record views, iterations, seconds, Gaussians, PSNR, SSIM, LPIPS and AVGE. Va
 - ``full``: the preset as is (its default depth prior);
 - ``no_depth``: the same without depth regularization (``depth_prior='none'``);
 - ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...);
+- ``iters:N``: the preset's whole schedule compressed to N iterations;
 - ``set:FIELD=JSON+FIELD=JSON``: the preset with these TrainConfig overrides (one part
   switched on or off, a schedule, ...), e.g. ``set:iterations=1500`` or
   ``set:depth_prior="none"+color_model="sh"``.
@@ -136,14 +137,25 @@ def variant_overrides(variant: str) -> dict[str, Any]:
                 overrides[key] = value
         return overrides
     raise SystemExit(
-        f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND, set:FIELD=JSON)"
+        f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND, iters:N, "
+        "set:FIELD=JSON)"
     )
 
 
 def variant_config(base: Any, variant: str) -> Any:
-    """The config of ``variant`` derived from the preset config ``base`` (validated)."""
+    """The config of ``variant`` derived from the preset config ``base`` (validated).
+
+    ``iters:N`` is the preset's schedule compressed to N iterations
+    (``TrainConfig.with_iterations``), e.g. ``iters:2000``; any other variant is a set of
+    field overrides (:func:`variant_overrides`)."""
     from sparsesplat.engine.train import preset
 
+    kind, _, count = variant.partition(":")
+    if kind == "iters":
+        try:
+            return base.with_iterations(int(count))
+        except ValueError:
+            raise SystemExit(f"bench-quality: variant {variant!r}: expected iters:N") from None
     overrides = variant_overrides(variant)
     if not overrides:
         return base
@@ -300,7 +312,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--variants",
         default=",".join(DEFAULT_VARIANTS),
-        help="comma list of full, no_depth, prior:KIND, set:FIELD=JSON+FIELD=JSON",
+        help="comma list of full, no_depth, prior:KIND, iters:N, set:FIELD=JSON+FIELD=JSON",
     )
     parser.add_argument("--iterations", type=int, default=None, help="override (scales schedule)")
     parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")

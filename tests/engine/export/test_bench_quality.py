@@ -123,3 +123,13 @@ def test_summary_is_mean_and_sample_std_over_seeds(tmp_path: Path) -> None:
     merged = json.loads(out.read_text())
     assert sorted(r["seed"] for r in merged["rows"]) == [0, 1, 2]
     assert merged["summary"][0]["psnr"] == "20 ± 2"
+
+
+def test_iters_variant_compresses_the_whole_schedule() -> None:
+    base = preset("llff")
+    short = quality.variant_config(base, "iters:1500")
+    assert short.iterations == 1500
+    assert short.densify_until == base.densify_until // 4
+    assert short.soft_depth_start == base.soft_depth_start // 4
+    with pytest.raises(SystemExit, match="iters:N"):
+        quality.variant_config(base, "iters:many")
