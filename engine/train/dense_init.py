@@ -30,6 +30,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -38,6 +41,43 @@ from torch import Tensor
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import PriorError
 from sparsesplat.engine.priors.base import PriorDepth
+from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.train.config import TrainConfig
+
+
+@dataclass(frozen=True)
+class DenseInitSettings:
+    """The dense-init part of the flat :class:`TrainConfig`."""
+
+    enabled: bool
+    """``config.init == 'dense'``."""
+    points: int | None
+    """Points to draw; None: the random init's count."""
+    min_confidence: float
+    """Smallest confidence of a pixel used."""
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> DenseInitSettings:
+        """The dense-init part of ``cfg``."""
+        return cls(
+            enabled=cfg.init == "dense",
+            points=cfg.dense_init_points,
+            min_confidence=cfg.dense_init_min_confidence,
+        )
+
+
+def init_priors(
+    scene: Scene, given: Sequence[Any] | None, cache_dir: Path | None
+) -> list[PriorDepth]:
+    """The metric depth the dense init back-projects: ``given`` when every one is a metric
+    :class:`PriorDepth` (a run on the plane-sweep prior), else a plane-sweep prior computed
+    from ``scene`` (read from / written to ``cache_dir`` when given). The regularisation prior
+    of a run is often monocular (pydnet), whose depth is not in scene units."""
+    if given and all(isinstance(p, PriorDepth) and p.metric for p in given):
+        return list(given)
+    from sparsesplat.engine.priors import compute_priors
+
+    return compute_priors(scene, "plane_sweep", cache_dir=cache_dir)
 
 
 def pixel_rays(camera: Camera, dtype: torch.dtype = torch.float64) -> Tensor:

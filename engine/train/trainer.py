@@ -27,6 +27,7 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,8 +38,9 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, make_color_model
+from sparsesplat.engine.color.sh import C0
 from sparsesplat.engine.datasets.common import with_background
-from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
+from sparsesplat.engine.errors import EngineError, PriorError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import (
     SSIMTarget,
@@ -51,6 +53,11 @@ from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.dense_init import (
+    DenseInitSettings,
+    dense_points_from_priors,
+    init_priors,
+)
 from sparsesplat.engine.train.densify import DensifySettings, DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSettings
 from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
@@ -70,6 +77,8 @@ from sparsesplat.engine.train.recorder import (
     render_model,
 )
 from sparsesplat.engine.train.schedule import position_lr
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ModelCollapsed", "TrainResult", "Trainer", "json_safe", "model_sh"]
 
@@ -136,9 +145,12 @@ class Trainer:
         on_progress: ProgressCallback | None = None,
         device: str | torch.device = "cpu",
         resume_from: str | Path | None = None,
+        init_depth: list[Any] | None = None,
     ) -> None:
         """Set up the model. ``priors``: one PriorDepth (or (H, W) tensor) per training view, or
-        None when the config uses no depth. ``resume_from``: a checkpoint to continue."""
+        None when the config uses no depth. ``resume_from``: a checkpoint to continue.
+        ``init_depth``: metric PriorDepths for ``init='dense'``; None uses ``priors`` when they
+        are metric, else computes a plane-sweep prior (cached under ``out_dir/priors``)."""
         self.config = config.validate()
         self.scene = scene
         self.device = torch.device(device)
@@ -160,7 +172,9 @@ class Trainer:
                 self._raster,
                 self.generator,
             )
-        self._setup_model()
+        self.init_note: str | None = None
+        """How the initial Gaussians were made when ``init='dense'`` (also in the metrics)."""
+        self._setup_model(init_depth if init_depth is not None else priors)
         densify = DensifySettings.from_config(self.config)
         self.densify: DensifyStrategy | None = None
         """The densification strategy; None when the run never densifies nor cleans."""
@@ -219,14 +233,37 @@ class Trainer:
         self.raster_near = near if near > 0 else 0.01
         """View-z culling distance used by every render of this run."""
 
-    def _setup_model(self) -> None:
+    def _initial_points(self, depth: list[Any] | None) -> tuple[Tensor, Tensor | None]:
+        """Hook ``init_points``: points (N, 3) and, from the dense init, their colours."""
         cfg, g = self.config, self.generator
         lo, hi = self.box
         if cfg.init_points is not None:
             n = cfg.init_points
         else:
             n = initial_point_count(cfg, lo, hi, [c.center.cpu() for c in self.cameras])
-        points = lo + torch.rand(n, 3, generator=g) * (hi - lo)
+        dense = DenseInitSettings.from_config(cfg)
+        if dense.enabled:
+            try:
+                cache = self.out_dir / "priors" if self.out_dir is not None else None
+                points, colours = dense_points_from_priors(
+                    [v.image for v in self.scene.train],
+                    [v.camera for v in self.scene.train],
+                    init_priors(self.scene, depth, cache),
+                    target=dense.points or n,
+                    generator=g,
+                    min_confidence=dense.min_confidence,
+                )
+                self.init_note = f"dense: {len(points)} points"
+                return points, colours
+            except PriorError as exc:
+                self.init_note = f"random: dense init failed ({exc})"
+                log.warning("init='dense' fell back to a random box: %s", exc)
+        return lo + torch.rand(n, 3, generator=g) * (hi - lo), None
+
+    def _setup_model(self, init_depth: list[Any] | None) -> None:
+        cfg, g = self.config, self.generator
+        points, colours = self._initial_points(init_depth)
+        n = len(points)
         self.color: ColorModel
         if cfg.color_model == "neural":
             self.color = NeuralColor.create(
@@ -239,6 +276,8 @@ class Trainer:
         else:
             self.color = SHColor(cfg.sh_degree, cfg.sh_degree_interval)
         extra = self.color.init_per_gaussian(n, g)
+        if colours is not None and "sh_dc" in extra:  # the pixels' colours as SH DC
+            extra["sh_dc"] = ((colours - 0.5) / C0).unsqueeze(1)
         self.gaussians = Gaussians.from_points(
             points.to(self.device),
             cfg.init_opacity,
@@ -384,6 +423,7 @@ class Trainer:
             "hard_ema": None,
             **(self.depth.state_dict() if self.depth is not None else {}),
             **self.guard.state_dict(),
+            **({"init_note": self.init_note} if self.init_note is not None else {}),
             "records": list(self.records),
         }
 
@@ -407,6 +447,7 @@ class Trainer:
         if self.depth is not None:
             self.depth.load_state_dict(state)
         self.guard.load_state_dict(state)
+        self.init_note = state.get("init_note", self.init_note)
         self.recorder.records = list(state["records"])
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path:
@@ -565,6 +606,8 @@ class Trainer:
         metrics = self.recorder.final_metrics(
             self.iteration, self.elapsed_s, self.gaussians, self.color, stopped
         )
+        if self.init_note is not None:
+            metrics["init"] = self.init_note
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._emit(StateChange("checkpointing", self.iteration))

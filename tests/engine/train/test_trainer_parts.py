@@ -5,11 +5,14 @@ says at trainer level, on tiny synthetic scenes."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
 
+from sparsesplat.engine.color.sh import C0
+from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer, preset
@@ -35,7 +38,7 @@ def _finite(t: Trainer) -> bool:
 def test_parts_switched_off_are_not_built() -> None:
     scene, priors = make_scene(seed=0)
     t = Trainer(scene, small(), priors)
-    assert t.dropout is None
+    assert t.dropout is None and t.init_note is None
 
 
 # -- dropout ---------------------------------------------------------------------------------
@@ -97,3 +100,79 @@ def test_dropout_that_keeps_nothing_renders_everything(monkeypatch: pytest.Monke
     # At this rate (almost) every draw keeps nothing: those photometric renders use all rows.
     photometric = [d for d, grad in calls if grad]
     assert len(photometric) == 12 and sum(d == 0 for d in photometric) >= 10
+
+
+# -- dense init ------------------------------------------------------------------------------
+
+
+def _true_depth_priors(scene: Any, depths: list[torch.Tensor]) -> list[PriorDepth]:
+    """The synthetic scene's true depth as metric priors, trusted where the image shows the
+    blob (not the black background)."""
+    out = []
+    for v, d in zip(scene.train, depths, strict=True):
+        conf = (v.image.amax(dim=-1) > 0.05).float()
+        out.append(PriorDepth(d.float(), conf, metric=True, kind="true"))
+    return out
+
+
+def _on_surface_fraction(points: torch.Tensor, scene: Any, depths: list[torch.Tensor]) -> float:
+    """Fraction of points within 2% of the true depth of the blob in some training view."""
+    near = torch.zeros(len(points), dtype=torch.bool)
+    for v, d in zip(scene.train, depths, strict=True):
+        cam = v.camera
+        w2c = cam.world_to_camera.float()
+        q = points @ w2c[:3, :3].T + w2c[:3, 3]
+        z = q[:, 2]
+        u = (cam.fx * q[:, 0] / z + cam.cx).floor().long()
+        r = (cam.fy * q[:, 1] / z + cam.cy).floor().long()
+        inside = (z > 0) & (u >= 0) & (u < cam.width) & (r >= 0) & (r < cam.height)
+        ui, ri = u.clamp(0, cam.width - 1), r.clamp(0, cam.height - 1)
+        fg = v.image.amax(dim=-1)[ri, ui] > 0.05
+        near |= inside & fg & ((z - d[ri, ui]).abs() <= 0.02 * d[ri, ui])
+    return float(near.float().mean())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_dense_init_points_lie_on_the_surface(tmp_path: Path, seed: int) -> None:
+    scene, depths = make_scene(seed=seed, width=40, height=30)
+    metric = _true_depth_priors(scene, depths)
+    dense = Trainer(
+        scene, small(init="dense", dense_init_points=150), depths, tmp_path, init_depth=metric
+    )
+    assert len(dense.gaussians) == 150
+    assert dense.init_note == "dense: 150 points"
+    random_init = Trainer(scene, small(), depths)
+    pts = dense.gaussians.means.detach()
+    assert _on_surface_fraction(pts, scene, depths) > 0.95
+    assert _on_surface_fraction(random_init.gaussians.means.detach(), scene, depths) < 0.3
+    res = dense.run()
+    assert res.metrics["init"] == "dense: 150 points" and _finite(dense)
+
+
+def test_dense_init_sh_colours_from_pixels() -> None:
+    scene, depths = make_scene(seed=2)
+    metric = _true_depth_priors(scene, depths)
+    cfg = small(init="dense", dense_init_points=100, color_model="sh")
+    t = Trainer(scene, cfg, depths, init_depth=metric)
+    rgb = t.gaussians.params["sh_dc"][:, 0].detach() * C0 + 0.5
+    pixels = torch.cat([v.image[(v.image.amax(dim=-1) > 0.05)] for v in scene.train])
+    # Every initial colour is one of the confident pixels' colours.
+    dist = torch.cdist(rgb.double(), pixels.double()).min(dim=1).values
+    assert bool((dist < 1e-5).all())
+
+
+def test_dense_init_without_confident_pixel_falls_back_to_random(tmp_path: Path) -> None:
+    scene, depths = make_scene(seed=3)
+    invalid = [PriorDepth(torch.full_like(d, -1.0), (d > 0).float(), True) for d in depths]
+    t = Trainer(scene, small(init="dense"), depths, tmp_path, init_depth=invalid)
+    assert len(t.gaussians) == 200 and t.init_note is not None
+    assert t.init_note.startswith("random: dense init failed")
+    res = t.run()
+    assert res.metrics["init"].startswith("random") and _finite(t)
+
+
+def test_dense_init_computes_plane_sweep_when_the_prior_is_not_metric(tmp_path: Path) -> None:
+    scene, depths = make_scene(seed=4, width=40, height=30)
+    t = Trainer(scene, small(init="dense", dense_init_points=100, iterations=3), depths, tmp_path)
+    assert t.init_note is not None  # dense or, when the sweep trusts nothing, the fallback
+    assert (tmp_path / "priors").is_dir()  # the plane-sweep prior is cached for a resume
