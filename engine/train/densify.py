@@ -15,6 +15,7 @@ cleans (``DensifySettings.active`` false) builds no strategy.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -135,9 +136,12 @@ class DensifyStrategy:
         cleaned: bool,
         extent: float,
         timer: StageTimer,
+        before_densify: Callable[[Gaussians], None] | None = None,
     ) -> None:
         """After the photometric backward: accumulate the statistics of ``out`` (the
-        photometric render through ``camera``), densify when due, reset opacities when due."""
+        photometric render through ``camera``), densify when due, reset opacities when due.
+        ``before_densify``: called with the model just before densify-and-prune (the DTU
+        black/white rule)."""
         s, g, it = self.settings, gaussians, iteration
         if it < s.densify_until and not cleaned:
             grad = out.means2d.grad
@@ -152,6 +156,8 @@ class DensifyStrategy:
                 prev = self.max_radii if self.max_radii is not None else torch.zeros(len(g))
                 self.max_radii = torch.maximum(prev, r) if prev.shape == r.shape else r
         if s.densify_from < it < s.densify_until and it % s.interval == 0:
+            if before_densify is not None:
+                before_densify(g)
             reset_done = s.opacity_reset_interval is not None and it > s.opacity_reset_interval
             g.densify_and_prune(
                 optimizer,

@@ -24,6 +24,7 @@ from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
 from sparsesplat.engine.losses import edge_aware_smoothness, global_local_depth_loss
 from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.dtu_background import fill_background_depth
 from sparsesplat.engine.train.guard import DivergenceGuard
 from sparsesplat.engine.train.parts import Raster, StageTimer, TrainView
 
@@ -67,6 +68,9 @@ class DepthSettings:
     """Smoothness applies for iterations > this."""
     empty_background: bool
     """Set the prior to its nearest value on pixels showing the pure background."""
+    fill_background: bool = False
+    """DTU: fill the view's background mask (``TrainView.mask``) in rendered and prior depth
+    with their foreground means (``dtu_background`` and ``dtu_depth_fill``)."""
 
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> DepthSettings:
@@ -88,6 +92,7 @@ class DepthSettings:
             smooth_weight=cfg.depth_smooth_weight,
             smooth_start=cfg.depth_smooth_start,
             empty_background=cfg.depth_empty_background,
+            fill_background=cfg.dtu_background and cfg.dtu_depth_fill,
         )
 
 
@@ -167,12 +172,13 @@ class DepthRegularizer:
             return
         n = len(g)
         empty = g.means.new_zeros(n, 0)
+        mask = view.mask if s.fill_background else None
         if s.hard and it > s.hard_start:
             hard = torch.full((n,), self.hard_logit, device=g.means.device)
             out = self.raster(
                 g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, view.camera, None
             )
-            loss = self.depth_loss(out.depth, view.index, iteration, extent)
+            loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
             loss.backward()
             optimizer.step()
@@ -194,21 +200,27 @@ class DepthRegularizer:
                 view.camera,
                 None,
             )
-            loss = self.depth_loss(out.depth, view.index, iteration, extent)
+            loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the soft-depth loss", iteration)
             loss.backward()
             optimizer.step()
             optimizer.zero_grad(set_to_none=True)
             timer.tick("soft_depth")
 
-    def depth_loss(self, depth: Tensor, index: int, iteration: int, extent: float) -> Tensor:
+    def depth_loss(
+        self, depth: Tensor, index: int, iteration: int, extent: float, mask: Tensor | None = None
+    ) -> Tensor:
         """Global-local depth loss of a rendered ``depth`` against prior ``index``, plus the
-        edge-aware smoothness once it is on (rendered depth in units of the scene extent)."""
+        edge-aware smoothness once it is on (rendered depth in units of the scene extent).
+        ``mask``: background pixels filled with the foreground means in both depths first."""
         s = self.settings
         d = depth.reshape(depth.shape[-2], depth.shape[-1])
+        prior = self.priors[index]
+        if mask is not None:
+            d, prior = fill_background_depth(d, prior, mask)
         loss = global_local_depth_loss(
             d,
-            self.priors[index],
+            prior,
             s.patch_range,
             s.error_tolerance,
             self.generator,

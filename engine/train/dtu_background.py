@@ -36,6 +36,7 @@ all-background view gives constant depth maps (which the guarded depth loss scor
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -44,6 +45,11 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.gaussians import Gaussians
+from sparsesplat.engine.losses import SSIMTarget
+from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.guard import DivergenceGuard
+from sparsesplat.engine.train.parts import Raster, StageTimer, TrainView
 
 
 @dataclass(frozen=True)
@@ -206,3 +212,104 @@ def _check_mask(mask: Tensor, image: Tensor) -> None:
             f"DTU background: mask must be bool {tuple(image.shape[-2:])}, got "
             f"{mask.dtype} {tuple(mask.shape)}"
         )
+
+
+@dataclass(frozen=True)
+class DtuPartSettings:
+    """The DTU background part of the flat :class:`TrainConfig` (``dtu_*`` fields)."""
+
+    enabled: bool
+    """``config.dtu_background``: the part is built only when on."""
+    blacken_target: bool
+    """Black masked target pixels in the photometric loss."""
+    depth_fill: bool
+    """Fill masked depth in the hard and soft passes (read by the depth regulariser)."""
+    alpha_loss: bool
+    """Run the background-alpha pass."""
+    black_white: bool
+    """Apply the black/white rule at each densification."""
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> DtuPartSettings:
+        """The DTU background part of ``cfg``."""
+        return cls(
+            enabled=cfg.dtu_background,
+            blacken_target=cfg.dtu_blacken_target,
+            depth_fill=cfg.dtu_depth_fill,
+            alpha_loss=cfg.dtu_alpha_loss,
+            black_white=cfg.dtu_black_white,
+        )
+
+
+class DtuBackground:
+    """The trainer's DTU background part. No state (the masks follow from the images).
+
+    Hooks: :meth:`adjust_view` (after the view is drawn), :meth:`step_pre_photometric` (after
+    the depth passes; own optimizer step), :meth:`black_white` (called by the densification
+    strategy just before densify-and-prune)."""
+
+    def __init__(
+        self, settings: DtuPartSettings, scene_name: str, images: list[Tensor], raster: Raster
+    ) -> None:
+        """``images``: the (3, H, W) training targets; the per-scan thresholds come from
+        ``scene_name`` (:meth:`DtuBackgroundSettings.for_scene`)."""
+        self.settings = settings
+        self.scan = DtuBackgroundSettings.for_scene(scene_name)
+        self.raster = raster
+        self.masks = [background_mask(img, self.scan) for img in images]
+        """(H, W) bool background mask per training view."""
+        self.targets: list[tuple[Tensor, SSIMTarget] | None] = [
+            (t := blacken_background(img, m), SSIMTarget(t)) if settings.blacken_target else None
+            for img, m in zip(images, self.masks, strict=True)
+        ]
+
+    def adjust_view(self, view: TrainView) -> TrainView:
+        """The view with its mask and, when on, its blackened target."""
+        edit = self.targets[view.index]
+        if edit is None:
+            return dataclasses.replace(view, mask=self.masks[view.index])
+        return dataclasses.replace(
+            view, image=edit[0], ssim_target=edit[1], mask=self.masks[view.index]
+        )
+
+    def step_pre_photometric(
+        self,
+        iteration: int,
+        gaussians: Gaussians,
+        optimizer: torch.optim.Optimizer,
+        view: TrainView,
+        guard: DivergenceGuard,
+        timer: StageTimer,
+    ) -> None:
+        """The background-alpha pass (real opacities, geometry detached: moves only opacities)
+        with its own optimizer step; skipped when off or when the view has no background (an
+        empty mask gives no gradient, and an Adam step on zero gradients would still move)."""
+        mask = self.masks[view.index]
+        if not self.settings.alpha_loss or not bool(mask.any()):
+            return
+        g = gaussians
+        out = self.raster(
+            g.means.detach(),
+            g.log_scales.detach(),
+            g.quats.detach(),
+            g.opacity_logits,
+            g.means.new_zeros(len(g), 0),
+            view.camera,
+            None,
+        )
+        loss = background_alpha_loss(out.alpha, mask)
+        guard.check_finite(loss.detach(), "the DTU background-alpha loss", iteration)
+        loss.backward()
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        timer.tick("dtu_alpha")
+
+    def black_white(self, iteration: int, gaussians: Gaussians, colors: Tensor) -> None:
+        """Apply :func:`black_white_rule` for ``colors`` (N, 3), the Gaussians' colours seen
+        from this iteration's camera: scale the gradient accumulators, reset opacities."""
+        adj = black_white_rule(colors, iteration, self.scan)
+        g = gaussians
+        g.grad_accum *= adj.grad_scale.to(g.grad_accum)
+        if bool(adj.reset.any()):
+            with torch.no_grad():
+                g.opacity_logits[adj.reset] = adj.reset_logit

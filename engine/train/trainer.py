@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -61,6 +62,7 @@ from sparsesplat.engine.train.dense_init import (
 from sparsesplat.engine.train.densify import DensifySettings, DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSettings
 from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
+from sparsesplat.engine.train.dtu_background import DtuBackground, DtuPartSettings
 from sparsesplat.engine.train.guard import DivergenceGuard, GuardSettings
 from sparsesplat.engine.train.parts import StageTimer, TrainView
 from sparsesplat.engine.train.progress import (
@@ -185,6 +187,11 @@ class Trainer:
         """DropGaussian on the photometric pass; None unless ``config.dropout``."""
         if dropout.enabled:
             self.dropout = PhotometricDropout(dropout, self.generator)
+        dtu = DtuPartSettings.from_config(self.config)
+        self.dtu: DtuBackground | None = None
+        """DTU black-background handling; None unless ``config.dtu_background``."""
+        if dtu.enabled:
+            self.dtu = DtuBackground(dtu, self.scene.name, self.images, self._raster)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),
@@ -504,11 +511,15 @@ class Trainer:
             cleaned = self.densify.step_pre_backward(it, self.gaussians, opt)
         g = self.gaussians
         view = self._next_view()
+        if self.dtu is not None:
+            view = self.dtu.adjust_view(view)
         timer.tick("setup")
 
         # Passes 1 and 2: hard and soft depth, each with its own optimizer step.
         if self.depth is not None:
             self.depth.step_pre_photometric(it, g, opt, view, self.extent, self.guard, timer)
+        if self.dtu is not None:  # DTU background alpha, own optimizer step
+            self.dtu.step_pre_photometric(it, g, opt, view, self.guard, timer)
 
         # Pass 3: photometric.
         colors = self.color.colors(g, view.camera.center)
@@ -542,13 +553,26 @@ class Trainer:
 
         if self.densify is not None:
             self.densify.step_post_backward(
-                it, g, opt, out, view.camera, cleaned, self.extent, timer
+                it, g, opt, out, view.camera, cleaned, self.extent, timer, self._black_white(view)
             )
         before = self.guard.before_step(it, opt, g, self.extent)
         opt.step()
         opt.zero_grad(set_to_none=True)
         self.guard.after_step(it, opt, g, self.extent, before)
         timer.tick("optimizer")
+
+    def _black_white(self, view: TrainView) -> Callable[[Gaussians], None] | None:
+        """The DTU black/white rule for the densification step, when on."""
+        dtu = self.dtu
+        if dtu is None or not dtu.settings.black_white:
+            return None
+        it, center = self.iteration, view.camera.center
+
+        def rule(g: Gaussians) -> None:
+            with torch.no_grad():
+                dtu.black_white(it, g, self.color.colors(g, center))
+
+        return rule
 
     def run(self) -> TrainResult:
         """Train to ``config.iterations`` (or until the callback says stop); evaluate, save."""

@@ -38,7 +38,8 @@ def _finite(t: Trainer) -> bool:
 def test_parts_switched_off_are_not_built() -> None:
     scene, priors = make_scene(seed=0)
     t = Trainer(scene, small(), priors)
-    assert t.dropout is None and t.init_note is None
+    assert t.dropout is None and t.init_note is None and t.dtu is None
+    assert not t.depth.settings.fill_background  # type: ignore[union-attr]
 
 
 # -- dropout ---------------------------------------------------------------------------------
@@ -176,3 +177,64 @@ def test_dense_init_computes_plane_sweep_when_the_prior_is_not_metric(tmp_path: 
     t = Trainer(scene, small(init="dense", dense_init_points=100, iterations=3), depths, tmp_path)
     assert t.init_note is not None  # dense or, when the sweep trusts nothing, the fallback
     assert (tmp_path / "priors").is_dir()  # the plane-sweep prior is cached for a resume
+
+
+# -- DTU background --------------------------------------------------------------------------
+
+
+def test_dtu_alpha_pass_changes_only_opacities_and_lowers_background_alpha() -> None:
+    scene, depths = make_scene(seed=0)
+    t = Trainer(scene, small(dtu_background=True), depths)
+    assert t.dtu is not None
+    view = t.dtu.adjust_view(t._next_view())
+    assert view.mask is not None and bool(view.mask.any()) and not bool(view.mask.all())
+    assert bool((view.image[:, view.mask] == 0).all())
+
+    def bg_alpha() -> float:
+        out = t.render(view.camera)
+        return float(out.alpha[0][view.mask].square().mean())
+
+    before = {k: v.detach().clone() for k, v in t.gaussians.params.items()}
+    a0 = bg_alpha()
+    for _ in range(5):
+        t.dtu.step_pre_photometric(1, t.gaussians, t.optimizer, view, t.guard, t.timer)
+    after = t.gaussians.params
+    for k, v in before.items():
+        assert torch.equal(v, after[k].detach()) == (k != "opacity_logits"), k
+    assert bg_alpha() < a0
+
+
+def test_dtu_run_applies_the_black_white_rule_at_each_densification() -> None:
+    scene, depths = make_scene(seed=1)
+    t = Trainer(scene, small(dtu_background=True), depths)
+    assert t.dtu is not None
+    calls: list[int] = []
+    rule = t.dtu.black_white
+
+    def spy(it: int, g: Any, colors: torch.Tensor) -> None:
+        assert colors.shape == (len(g), 3)
+        calls.append(it)
+        rule(it, g, colors)
+
+    t.dtu.black_white = spy  # type: ignore[method-assign]
+    res = t.run()
+    assert calls == [10, 15, 20] and _finite(t) and math.isfinite(res.metrics["psnr"])
+
+
+def test_dtu_sub_switches_off_leave_only_the_mask() -> None:
+    scene, depths = make_scene(seed=1)
+    off = dict(dtu_blacken_target=False, dtu_alpha_loss=False, dtu_black_white=False)
+    t = Trainer(scene, small(dtu_background=True, **off), depths)
+    assert t.dtu is not None and t._black_white(t._next_view()) is None
+    view = t.dtu.adjust_view(t._next_view())
+    assert torch.equal(view.image, t.images[view.index]) and view.mask is not None
+
+
+@pytest.mark.parametrize("fill", [0.0, 1.0])
+def test_dtu_all_background_and_no_background_views_stay_finite(fill: float) -> None:
+    # All black: every pixel is background (constant depth maps, alpha pushed to 0 everywhere);
+    # all white: no background (the alpha pass is skipped, the depth left unchanged).
+    scene, depths = make_scene(seed=3, image_fill=fill)
+    t = Trainer(scene, small(dtu_background=True, iterations=20, densify_from=3), depths)
+    t.run()
+    assert _finite(t)
