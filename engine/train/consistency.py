@@ -32,6 +32,7 @@ backward::
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -39,6 +40,10 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import CameraError
+from sparsesplat.engine.gaussians import Gaussians
+from sparsesplat.engine.raster import RasterOutput
+from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.parts import Raster, TrainView
 
 
 def _rays(camera: Camera, dtype: torch.dtype, device: torch.device) -> Tensor:
@@ -159,3 +164,80 @@ def warp_consistency_loss(
     warped = _sample(source_image.to(z_ref), u, v, source, "bilinear")
     diff = (warped - reference_image.to(z_ref)).abs().mean(dim=0)
     return diff.masked_fill(~valid, 0.0).sum() / count
+
+
+@dataclass(frozen=True)
+class ConsistencySettings:
+    """The warp-consistency part of the flat :class:`TrainConfig`."""
+
+    weight: float
+    """``consistency_weight``; the part is built only when > 0."""
+    start: int
+    """The term applies for iterations > this."""
+    occlusion: bool
+    """Render the partner's depth for the occlusion check."""
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the term is on."""
+        return self.weight > 0
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig) -> ConsistencySettings:
+        """The consistency part of ``cfg``."""
+        return cls(cfg.consistency_weight, cfg.consistency_start, cfg.consistency_occlusion)
+
+
+class WarpConsistency:
+    """The trainer's consistency part (hook ``extra_loss``): each training view is paired
+    with the other training view whose camera centre is nearest. No state."""
+
+    def __init__(
+        self,
+        settings: ConsistencySettings,
+        cameras: list[Camera],
+        images: list[Tensor],
+        raster: Raster,
+    ) -> None:
+        """``cameras``, ``images``: the training views ((3, H, W) photos, not edited targets)."""
+        self.settings = settings
+        self.cameras = cameras
+        self.images = images
+        self.raster = raster
+        centers = torch.stack([c.center.detach().double().cpu() for c in cameras])
+        dist = torch.cdist(centers, centers)
+        dist.fill_diagonal_(math.inf)
+        self.partners: list[int | None] = [
+            int(dist[i].argmin()) if len(cameras) > 1 else None for i in range(len(cameras))
+        ]
+        """Partner view of each training view (None with a single view)."""
+
+    def extra_loss(
+        self, iteration: int, gaussians: Gaussians, out: RasterOutput, view: TrainView
+    ) -> Tensor | None:
+        """``weight x`` :func:`warp_consistency_loss` of the photometric render ``out``
+        against the partner photo, or None when the term is not due (or no partner)."""
+        s, j = self.settings, self.partners[view.index]
+        if iteration <= s.start or j is None:
+            return None
+        src_cam = self.cameras[j]
+        source_depth = None
+        if s.occlusion:
+            g = gaussians
+            with torch.no_grad():
+                p = self.raster(
+                    g.means, g.log_scales, g.quats, g.opacity_logits,
+                    g.means.new_zeros(len(g), 0), src_cam, None,
+                )  # fmt: skip
+                a = p.alpha[0]
+                source_depth = torch.where(a >= 0.5, p.depth[0] / a.clamp_min(1e-6), -1.0)
+        loss = warp_consistency_loss(
+            self.images[view.index],
+            self.images[j],
+            out.depth,
+            view.camera,
+            src_cam,
+            alpha=out.alpha,
+            source_depth=source_depth,
+        )
+        return s.weight * loss

@@ -54,6 +54,7 @@ from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.consistency import ConsistencySettings, WarpConsistency
 from sparsesplat.engine.train.dense_init import (
     DenseInitSettings,
     dense_points_from_priors,
@@ -192,6 +193,11 @@ class Trainer:
         """DTU black-background handling; None unless ``config.dtu_background``."""
         if dtu.enabled:
             self.dtu = DtuBackground(dtu, self.scene.name, self.images, self._raster)
+        consistency = ConsistencySettings.from_config(self.config)
+        self.consistency: WarpConsistency | None = None
+        """The warp-consistency term; None unless ``config.consistency_weight > 0``."""
+        if consistency.enabled:
+            self.consistency = WarpConsistency(consistency, self.cameras, self.images, self._raster)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),
@@ -489,8 +495,7 @@ class Trainer:
         """(total, photometric): L1 + λ·D-SSIM plus DNGaussian's shape/scale/opacity terms."""
         cfg, g = self.config, self.gaussians
         scales = g.scales
-        target = view.ssim_target if view.ssim_target is not None else view.image
-        photo = photometric_loss(image, view.image, cfg.lambda_dssim, target)
+        photo = photometric_loss(image, view.image, cfg.lambda_dssim, view.ssim_target)
         loss = photo
         if cfg.shape_weight:
             loss = loss + cfg.shape_weight * shape_regularizer(scales)
@@ -527,6 +532,7 @@ class Trainer:
         # Profiling splits the colour field's backward from the rasterizer's.
         leaf = colors.detach().requires_grad_(True) if cfg.profile else colors
         drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
+        inputs: tuple[Tensor, ...]
         if drop is None:
             inputs = (g.means, g.log_scales, g.quats, g.opacity_logits, leaf)
         else:  # only the kept rows are rendered, their opacities compensated
@@ -540,6 +546,9 @@ class Trainer:
         out = self._raster(*inputs, view.camera, self.background)
         timer.tick("photo_render")
         loss, photo = self._photometric_loss(out.image, view)
+        if self.consistency is not None:
+            extra = self.consistency.extra_loss(it, g, out, view)
+            loss = loss if extra is None else loss + extra
         self.guard.check_finite(loss.detach(), "the photometric loss", it)
         timer.tick("losses")
         loss.backward()

@@ -238,3 +238,42 @@ def test_dtu_all_background_and_no_background_views_stay_finite(fill: float) -> 
     t = Trainer(scene, small(dtu_background=True, iterations=20, densify_from=3), depths)
     t.run()
     assert _finite(t)
+
+
+# -- warp consistency ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_consistency_term_reaches_the_geometry_and_the_run_is_finite(seed: int) -> None:
+    scene, depths = make_scene(seed=seed)
+    t = Trainer(scene, small(seed=seed, consistency_weight=0.5), depths)
+    assert t.consistency is not None
+    partners = t.consistency.partners
+    assert all(p is not None and p != i for i, p in enumerate(partners))
+    view = t._next_view()
+    g = t.gaussians
+    out = t._raster(
+        g.means, g.log_scales, g.quats, g.opacity_logits,
+        t.color.colors(g, view.camera.center), view.camera, t.background,
+    )  # fmt: skip
+    assert t.consistency.extra_loss(0, g, out, view) is None  # not after consistency_start
+    loss = t.consistency.extra_loss(1, g, out, view)
+    assert loss is not None and float(loss.detach()) > 0
+    loss.backward()
+    assert g.means.grad is not None and float(g.means.grad.abs().sum()) > 0
+    t.optimizer.zero_grad(set_to_none=True)
+    res = t.run()
+    assert _finite(t) and math.isfinite(res.metrics["psnr"])
+
+
+def test_consistency_with_a_single_view_has_no_partner() -> None:
+    scene, depths = make_scene(seed=2, n_train=1)
+    t = Trainer(scene, small(consistency_weight=1.0, iterations=10), depths)
+    assert t.consistency is not None and t.consistency.partners == [None]
+    t.run()
+    assert _finite(t)
+
+
+def test_consistency_start_is_compressed_with_the_schedule() -> None:
+    cfg = preset("llff", consistency_weight=0.1, consistency_start=3000).with_iterations(600)
+    assert cfg.consistency_start == 300
