@@ -20,7 +20,9 @@ state (``engine/train/parts.py`` says what a part is):
 Deviations from the reference, on purpose: guarded depth loss (empty selection, zero variance),
 no unused SH tensors, geometry features cached per evaluation, a fixed hash-grid resolution
 (scale-free), an optional cap on the number of Gaussians, no LLFF spiral near-plane pruning and
-no DTU/Blender scene-name hacks.
+no Blender scene-name hacks. Optional parts, off by default and built only when on: DropGaussian
+(``dropout.py``), dense init (``dense_init.py``), DTU background handling
+(``dtu_background.py``), warp consistency (``consistency.py``); ``parts.py`` lists the hooks.
 
 No global state: each trainer owns its torch.Generator, optimizer and models.
 """
