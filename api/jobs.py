@@ -20,6 +20,11 @@ alpha (inward-looking cameras), ``default`` user uploads (LLFF recipe)."""
 ColorModelName = Literal["neural", "sh"]
 """Colour model: DNGaussian's neural colour field, or plain spherical harmonics."""
 
+InitName = Literal["random", "dense"]
+"""Initial Gaussians: ``random`` points in a box around the cameras' view (the method's), or
+``dense`` points back-projected from the confident pixels of a plane-sweep depth of the
+uploaded views themselves."""
+
 
 class JobState(StrEnum):
     """Life cycle of a job. ``queued`` → ``running`` → one of the three terminal states."""
@@ -75,6 +80,17 @@ class JobSpec(BaseModel):
     None: the preset's (60 s)."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
+    init: InitName | None = None
+    """Initial Gaussians (``random`` or ``dense``); None: the preset's."""
+    dropout: bool | None = None
+    """DropGaussian: drop a random share of Gaussians in each photometric pass, compensating
+    the rest's opacity (a prior-free sparse-view regulariser); None: the preset's."""
+    dtu_background: bool | None = None
+    """The DTU reference pieces for an object on a dark background (dark-pixel mask, black
+    targets there, background-alpha pass, black/white densification rule); None: the
+    preset's."""
+    consistency_weight: float | None = Field(default=None, ge=0, le=10)
+    """Weight of the multi-view warp-consistency term (0: off); None: the preset's."""
 
     @model_validator(mode="after")
     def _one_length(self) -> JobSpec:

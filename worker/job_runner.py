@@ -52,7 +52,17 @@ def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
     else:
         name, reason = _preset_for(scene)
     overrides: dict[str, Any] = {"seed": spec.seed}
-    for key in ("depth_prior", "color_model", "hard_depth", "soft_depth", "background"):
+    for key in (
+        "depth_prior",
+        "color_model",
+        "hard_depth",
+        "soft_depth",
+        "background",
+        "init",
+        "dropout",
+        "dtu_background",
+        "consistency_weight",
+    ):
         value = getattr(spec, key)
         if value is not None:
             overrides[key] = "user" if (key == "depth_prior" and value == "uploaded") else value
