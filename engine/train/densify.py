@@ -152,8 +152,13 @@ class DensifyStrategy:
                 ndc = grad * torch.tensor([0.5 * w, 0.5 * h], device=grad.device)
                 g.add_densification_stats(ndc, out.radii > 0)
             if s.max_screen_size is not None:
-                r = out.radii.detach().float().cpu()
-                prev = self.max_radii if self.max_radii is not None else torch.zeros(len(g))
+                # Kept on the model's device: a copy to the host would sync a GPU every step.
+                r = out.radii.detach().float()
+                prev = (
+                    self.max_radii.to(r.device)
+                    if self.max_radii is not None
+                    else torch.zeros(len(g), device=r.device)
+                )
                 self.max_radii = torch.maximum(prev, r) if prev.shape == r.shape else r
         if s.densify_from < it < s.densify_until and it % s.interval == 0:
             if before_densify is not None:
@@ -172,7 +177,7 @@ class DensifyStrategy:
                 max_world_size=s.max_world_size * extent if s.max_world_size else None,
                 max_gaussians=s.max_gaussians,
             )
-            self.max_radii = torch.zeros(len(g))
+            self.max_radii = torch.zeros(len(g), device=g.means.device)
             if len(g) == 0:
                 raise ModelCollapsed(
                     f"step {it}: every Gaussian was pruned (prune_opacity={s.prune_opacity})"
@@ -202,11 +207,11 @@ class DensifyStrategy:
         if not bool(visible.all()):
             g.prune(visible, optimizer)
             if self.max_radii is not None:
-                self.max_radii = self.max_radii[visible.cpu()]
+                self.max_radii = self.max_radii[visible.to(self.max_radii.device)]
 
     def state_dict(self) -> dict[str, Any]:
         """Checkpoint entries (``max_radii``; the accumulators are saved with the model)."""
-        return {"max_radii": self.max_radii}
+        return {"max_radii": None if self.max_radii is None else self.max_radii.cpu()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore the entries of :meth:`state_dict`."""
