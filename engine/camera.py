@@ -72,3 +72,18 @@ class Camera:
             max(1, round(self.width * factor)),
             max(1, round(self.height * factor)),
         )
+
+
+def pixel_rays(
+    camera: Camera, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu"
+) -> Tensor:
+    """(H, W, 3) camera-space rays with z = 1 through the pixel centres of ``camera``: a pixel's
+    view-space point at depth z is ``z * ray``."""
+    v, u = torch.meshgrid(
+        torch.arange(camera.height, dtype=dtype, device=device) + 0.5,
+        torch.arange(camera.width, dtype=dtype, device=device) + 0.5,
+        indexing="ij",
+    )
+    return torch.stack(
+        [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, torch.ones_like(u)], dim=-1
+    )

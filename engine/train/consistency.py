@@ -38,24 +38,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import CameraError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.parts import Raster, TrainView
-
-
-def _rays(camera: Camera, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """(H, W, 3) camera-space rays (z = 1) through the pixel centres."""
-    v, u = torch.meshgrid(
-        torch.arange(camera.height, dtype=dtype, device=device) + 0.5,
-        torch.arange(camera.width, dtype=dtype, device=device) + 0.5,
-        indexing="ij",
-    )
-    return torch.stack(
-        [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, torch.ones_like(u)], dim=-1
-    )
 
 
 def relative_pose(reference: Camera, source: Camera) -> tuple[Tensor, Tensor]:
@@ -82,7 +70,7 @@ def warp_coordinates(
         )
     rot, trans = relative_pose(reference, source)
     rot, trans = rot.to(depth), trans.to(depth)
-    pts = _rays(reference, depth.dtype, depth.device) * depth[..., None]
+    pts = pixel_rays(reference, depth.dtype, depth.device) * depth[..., None]
     q = pts @ rot.T + trans
     z = q[..., 2]
     # Divide only by safe z: a z <= 0 pixel is masked, but its gradient must stay finite.

@@ -38,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import PriorError
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.scene import Scene
@@ -78,17 +78,6 @@ def init_priors(
     from sparsesplat.engine.priors import compute_priors
 
     return compute_priors(scene, "plane_sweep", cache_dir=cache_dir)
-
-
-def pixel_rays(camera: Camera, dtype: torch.dtype = torch.float64) -> Tensor:
-    """(H, W, 3) camera-space rays with z = 1 through the pixel centres of ``camera``."""
-    h, w = camera.height, camera.width
-    v, u = torch.meshgrid(
-        torch.arange(h, dtype=dtype) + 0.5, torch.arange(w, dtype=dtype) + 0.5, indexing="ij"
-    )
-    return torch.stack(
-        [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, torch.ones_like(u)], dim=-1
-    )
 
 
 def backproject(depth: Tensor, camera: Camera) -> Tensor:

@@ -13,7 +13,7 @@ import math
 import pytest
 import torch
 
-from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import PriorError
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.train.dense_init import (
@@ -21,7 +21,6 @@ from sparsesplat.engine.train.dense_init import (
     dense_points,
     dense_points_from_priors,
     photo_consistency,
-    pixel_rays,
 )
 from tests.engine.numerics import UNIT_ROUNDOFF
 
