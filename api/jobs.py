@@ -91,6 +91,10 @@ class JobSpec(BaseModel):
     preset's."""
     consistency_weight: float | None = Field(default=None, ge=0, le=10)
     """Weight of the multi-view warp-consistency term (0: off); None: the preset's."""
+    near_prune: bool | None = None
+    """Delete Gaussians within half the scene's near bound of its render path (LLFF: the
+    spiral through every pose) in training, and leave those near a held-out camera out of
+    its evaluation; None: the preset's."""
 
     @model_validator(mode="after")
     def _one_length(self) -> JobSpec:

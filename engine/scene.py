@@ -53,3 +53,6 @@ class Scene:
     """Indices of the training views in the source's sorted image list."""
     test_indices: list[int] = field(default_factory=list)
     """Indices of the held-out views in the source's sorted image list."""
+    render_path: list[Camera] = field(default_factory=list)
+    """The format's own novel-view camera path (LLFF: the reference's 180-frame spiral through
+    every image's pose, ``engine/camera_path.py``); empty where the format defines none."""

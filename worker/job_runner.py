@@ -62,6 +62,7 @@ def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
         "dropout",
         "dtu_background",
         "consistency_weight",
+        "near_prune",
     ):
         value = getattr(spec, key)
         if value is not None:

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from sparsesplat.engine.camera_convert import cameras_from_llff
+from sparsesplat.engine.camera_path import spiral_cameras
 from sparsesplat.engine.datasets.common import covisible_box, load_view
 from sparsesplat.engine.datasets.splits import llff_split
 from sparsesplat.engine.errors import CameraError, SceneError
@@ -57,15 +58,25 @@ def load_llff(root: Path, views: int, downscale: int = 1) -> Scene:
         [float(bounds[i, 0]) for i in train_idx],
         [float(bounds[i, 1]) for i in train_idx],
     )
+    near, far = float(bounds[:, 0].min()), float(bounds[:, 1].max())
+    path = []
+    if train:
+        try:
+            # Intrinsics of the first training view: already scaled by any downscale.
+            poses = [c.camera_to_world for c in cameras]
+            path = spiral_cameras(poses, near, far, train[0].camera)
+        except CameraError:
+            pass  # a rig without an average viewing direction has no spiral; not fatal
     return Scene(
         name=root.name,
         format="llff",
         train=train,
         test=test,
         background=torch.tensor(background),
-        near=float(bounds[:, 0].min()),
-        far=float(bounds[:, 1].max()),
+        near=near,
+        far=far,
         init_box=box,
         train_indices=train_idx,
         test_indices=test_idx,
+        render_path=path,
     )

@@ -260,6 +260,17 @@ class TrainConfig:
     """The consistency term applies for iterations > this."""
     consistency_occlusion: bool = True
     """Render the partner's depth (no gradient) for the term's occlusion check."""
+    near_prune: bool = False
+    """Near-plane pruning of the reference's LLFF runs (``engine/train/near_prune.py``): delete
+    Gaussians close to the scene's render path in training (the LLFF spiral; other formats:
+    the training cameras) and leave those close to a held-out camera out of its evaluation."""
+    near_prune_radius: float = 0.5
+    """(with near_prune) The radius as a fraction of the scene's near bound (the reference's
+    absolute 10 units would delete most of a scene whose near bound is 1-3 units)."""
+    near_prune_start: int = 2000
+    """(with near_prune) The training-time prune runs for iterations > this."""
+    near_prune_every: int = 25
+    """(with near_prune) ... on every this-many-th iteration."""
 
     # -- rasterizer -----------------------------------------------------------------------
     raster_backend: RasterBackendName = "auto"
@@ -299,6 +310,10 @@ class TrainConfig:
             raise ConfigError(f"dense_init_points must be >= 1, got {self.dense_init_points}")
         if not (math.isfinite(self.consistency_weight) and self.consistency_weight >= 0.0):
             raise ConfigError(f"consistency_weight must be >= 0, got {self.consistency_weight}")
+        if not (math.isfinite(self.near_prune_radius) and self.near_prune_radius > 0.0):
+            raise ConfigError(f"near_prune_radius must be > 0, got {self.near_prune_radius}")
+        if self.near_prune_every < 1:
+            raise ConfigError(f"near_prune_every must be >= 1, got {self.near_prune_every}")
         if self.eval_max_views is not None and self.eval_max_views < 1:
             raise ConfigError(f"eval_max_views must be >= 1 or None, got {self.eval_max_views}")
         if self.background is not None and (
@@ -396,6 +411,7 @@ SCHEDULE_FIELDS = (
     "sh_degree_interval",
     "opacity_reset_interval",
     "consistency_start",
+    "near_prune_start",
 )
 """Fields counted in iterations, scaled by :meth:`TrainConfig.with_iterations`."""
 

@@ -22,8 +22,10 @@ changes nothing, not even the order of the run's random draws. The loop's order 
     guard.check_finite, backward
     scatter_output                 dropout: means2d.grad and radii back on all N rows
     densify.step_post_backward     statistics, (dtu.black_white), densify, opacity reset
+    near_prune.step                delete Gaussians near the render path (near_prune)
     guard.before_step / optimizer step / guard.after_step
-    recorder.record                when an evaluation is due
+    recorder.record                when an evaluation is due (near_prune.eval_keep: the rows
+                                   rendered for the held-out cameras)
 """
 
 from __future__ import annotations

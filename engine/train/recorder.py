@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -168,6 +169,9 @@ class Recorder:
         """The error-vs-time series (ProgressRecord dicts)."""
         self.view_coverage: dict[str, float] = {}
         """Mean alpha of each view's render at the last evaluation (by view name)."""
+        self.eval_keep: Callable[[Tensor, list[Camera]], Tensor] | None = None
+        """Rows an evaluation renders, from the means and the cameras rendered (near-plane
+        pruning); None renders every row."""
         self._evaluator: Evaluator | None = None
         self._loss_sum = 0.0
         self._loss_count = 0
@@ -192,6 +196,10 @@ class Recorder:
         if self._evaluator is None:
             lpips_mode: LpipsMode = "optional" if self.settings.eval_lpips else "off"
             self._evaluator = Evaluator(lpips_mode=lpips_mode, psnr_ceiling=PSNR_CEILING)
+        if self.eval_keep is not None:
+            keep = self.eval_keep(gaussians.means, [v.camera for v in views])
+            if not bool(keep.all()):
+                gaussians = Gaussians({k: p.detach()[keep] for k, p in gaussians.params.items()})
         geo = color.geo_features(gaussians) if isinstance(color, NeuralColor) else None
         device = gaussians.means.device
         scores = []

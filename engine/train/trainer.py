@@ -19,10 +19,11 @@ state (``engine/train/parts.py`` says what a part is):
 
 Deviations from the reference, on purpose: guarded depth loss (empty selection, zero variance),
 no unused SH tensors, geometry features cached per evaluation, a fixed hash-grid resolution
-(scale-free), an optional cap on the number of Gaussians, no LLFF spiral near-plane pruning and
-no Blender scene-name hacks. Optional parts, off by default and built only when on: DropGaussian
-(``dropout.py``), dense init (``dense_init.py``), DTU background handling
-(``dtu_background.py``), warp consistency (``consistency.py``); ``parts.py`` lists the hooks.
+(scale-free), an optional cap on the number of Gaussians, no Blender scene-name hacks.
+Optional parts, each built only when its switch is on (the DTU preset turns dense init on):
+DropGaussian (``dropout.py``), dense init (``dense_init.py``), DTU background handling
+(``dtu_background.py``), warp consistency (``consistency.py``), LLFF near-plane pruning with a
+radius relative to the scene's near bound (``near_prune.py``); ``parts.py`` lists the hooks.
 
 No global state: each trainer owns its torch.Generator, optimizer and models.
 """
@@ -67,6 +68,7 @@ from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSe
 from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
 from sparsesplat.engine.train.dtu_background import DtuBackground, DtuPartSettings
 from sparsesplat.engine.train.guard import DivergenceGuard, GuardSettings
+from sparsesplat.engine.train.near_prune import NearPrune, NearPruneSettings
 from sparsesplat.engine.train.parts import StageTimer, TrainView
 from sparsesplat.engine.train.progress import (
     ProgressCallback,
@@ -200,6 +202,11 @@ class Trainer:
         """The warp-consistency term; None unless ``config.consistency_weight > 0``."""
         if consistency.enabled:
             self.consistency = WarpConsistency(consistency, self.cameras, self.images, self._raster)
+        near_prune = NearPruneSettings.from_config(self.config)
+        self.near_prune: NearPrune | None = None
+        """Near-plane pruning; None unless ``config.near_prune``."""
+        if near_prune.enabled:
+            self.near_prune = NearPrune(near_prune, self.scene, self.device)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),
@@ -208,6 +215,8 @@ class Trainer:
             self._raster,
             self.out_dir,
         )
+        if self.near_prune is not None:
+            self.recorder.eval_keep = self.near_prune.eval_keep
         self.timer = StageTimer(self.config.profile)
         self.iteration = 0
         self.elapsed_s = 0.0
@@ -439,6 +448,7 @@ class Trainer:
             **(self.depth.state_dict() if self.depth is not None else {}),
             **self.guard.state_dict(),
             **({"init_note": self.init_note} if self.init_note is not None else {}),
+            **(self.near_prune.state_dict() if self.near_prune is not None else {}),
             "records": list(self.records),
         }
 
@@ -463,6 +473,8 @@ class Trainer:
             self.depth.load_state_dict(state)
         self.guard.load_state_dict(state)
         self.init_note = state.get("init_note", self.init_note)
+        if self.near_prune is not None:
+            self.near_prune.load_state_dict(state)
         self.recorder.records = list(state["records"])
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path:
@@ -566,6 +578,8 @@ class Trainer:
             self.densify.step_post_backward(
                 it, g, opt, out, view.camera, cleaned, self.extent, timer, self._black_white(view)
             )
+        if self.near_prune is not None:
+            self.near_prune.step(it, g, opt)
         before = self.guard.before_step(it, opt, g, self.extent)
         opt.step()
         opt.zero_grad(set_to_none=True)
@@ -643,6 +657,8 @@ class Trainer:
         )
         if self.init_note is not None:
             metrics["init"] = self.init_note
+        if self.near_prune is not None:
+            metrics["near_pruned"] = self.near_prune.pruned
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._emit(StateChange("checkpointing", self.iteration))

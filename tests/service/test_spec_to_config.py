@@ -15,7 +15,8 @@ def test_unset_switches_keep_the_presets_values() -> None:
     config, reason = build_config(JobSpec(preset="dtu"), scene=None)
     assert reason is None
     want = preset("dtu")
-    for field in ("init", "dropout", "dtu_background", "consistency_weight", "color_model"):
+    fields = ("init", "dropout", "dtu_background", "consistency_weight", "near_prune")
+    for field in (*fields, "color_model"):
         assert getattr(config, field) == getattr(want, field), field
 
 
@@ -26,6 +27,7 @@ def test_each_part_switch_reaches_the_training_config() -> None:
         dropout=True,
         dtu_background=True,
         consistency_weight=0.1,
+        near_prune=True,
         iterations=1500,
     )
     config, _ = build_config(spec, scene=None)
@@ -33,11 +35,13 @@ def test_each_part_switch_reaches_the_training_config() -> None:
     assert config.dropout is True
     assert config.dtu_background is True
     assert config.consistency_weight == pytest.approx(0.1)
+    assert config.near_prune is True
     assert config.iterations == 1500
 
 
 @pytest.mark.parametrize(
-    "bad", [{"init": "mvs"}, {"consistency_weight": -1.0}, {"dropout": "often"}]
+    "bad",
+    [{"init": "mvs"}, {"consistency_weight": -1.0}, {"dropout": "often"}, {"near_prune": "x"}],
 )
 def test_bad_switch_values_are_rejected_with_the_field_named(bad: dict) -> None:
     with pytest.raises(ValidationError) as info:

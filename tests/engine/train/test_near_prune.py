@@ -4,6 +4,7 @@ the decision boundary), the schedule, and the stiff cases."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,12 +12,20 @@ import pytest
 import torch
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera_path import llff_render_path, spiral_path
+from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.errors import CameraError
+from sparsesplat.engine.gaussians import Gaussians
+from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.synthetic import make_scene
+from sparsesplat.engine.train import preset
+from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.train.densify import ModelCollapsed
 from sparsesplat.engine.train.near_prune import (
+    NearPrune,
     NearPruneSchedule,
-    llff_render_path,
+    NearPruneSettings,
     near_prune_mask,
-    spiral_path,
 )
 
 from .plane_scene import camera
@@ -182,3 +191,101 @@ def test_render_path_cameras_are_valid_cameras() -> None:
     for c in cams:
         r = c.world_to_camera[:3, :3].double()
         assert float((r @ r.T - torch.eye(3, dtype=torch.float64)).abs().max()) < 1e-6
+
+
+# -- the training part -----------------------------------------------------------------------
+
+
+def _part(scene: Scene, radius: float = 0.5, every: int = 25, after: int = 0) -> NearPrune:
+    settings = NearPruneSettings(True, radius, NearPruneSchedule(every=every, after=after))
+    return NearPrune(settings, scene, torch.device("cpu"))
+
+
+def _model_near(centres: torch.Tensor, radius: float, seed: int) -> tuple[Gaussians, torch.Tensor]:
+    """Gaussians half of which sit well inside ``radius`` of a centre (<= 0.5 radius), the
+    other half well outside every centre (>= 1.5 radius); returns them and the inside mask."""
+    g = torch.Generator().manual_seed(seed)
+    n = 40
+    inside = torch.arange(n) % 2 == 0
+    pick = torch.randint(0, len(centres), (n,), generator=g)
+    direction = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=torch.float64))
+    length = torch.rand(n, generator=g, dtype=torch.float64) * 0.5 * radius
+    points = centres[pick] + direction * length[:, None]
+    far = centres.mean(0) + torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64) * 50.0 * radius
+    points[~inside] = far + torch.randn(int((~inside).sum()), 3, generator=g, dtype=torch.float64)
+    d_out = torch.cdist(points[~inside], centres).min(dim=1).values
+    assert bool((d_out >= 1.5 * radius).all())  # the fixture keeps off the boundary
+    return Gaussians.from_points(points.float(), 0.5, {}), inside
+
+
+def test_part_prunes_exactly_the_rows_near_the_path_with_their_moments(seed: int) -> None:
+    scene, _ = make_scene(seed=seed)
+    part = _part(scene, radius=0.5, every=5, after=10)
+    centres = torch.stack([v.camera.center.double() for v in scene.train])
+    assert torch.equal(part.path_centres, centres)  # no render path: the training cameras
+    model, inside = _model_near(centres, part.radius, seed)
+    opt = torch.optim.Adam([{"params": [p], "name": k} for k, p in model.params.items()])
+    model.means.grad = torch.ones_like(model.means)
+    opt.step()
+    moment = opt.state[model.means]["exp_avg"].clone()
+    before = model.means.detach().clone()
+    part.step(11, model, opt)  # (11 - 1) % 5 == 0 and 11 > 10: due
+    assert torch.equal(model.means.detach(), before[~inside])
+    assert torch.equal(opt.state[model.means]["exp_avg"], moment[~inside])
+    assert part.pruned == int(inside.sum())
+    for not_due in (10, 12, 5):
+        part.step(not_due, *_model_near(centres, part.radius, seed)[:1], opt)
+    assert part.pruned == int(inside.sum())
+
+
+def test_render_path_replaces_the_training_cameras(seed: int) -> None:
+    scene, _ = make_scene(seed=seed)
+    path = [camera((float(x), 0.0, -3.0)) for x in range(-2, 3)]
+    part = _part(dataclasses.replace(scene, render_path=path))
+    want = torch.stack([c.center.double() for c in path])
+    assert torch.equal(part.path_centres, want)
+    assert part.radius == 0.5 * scene.near
+
+
+def test_a_radius_that_covers_everything_is_a_clear_error() -> None:
+    scene, _ = make_scene(seed=0)
+    part = _part(scene, radius=1e6, every=1)
+    model = Gaussians.from_points(torch.randn(10, 3), 0.5, {})
+    with pytest.raises(ModelCollapsed, match="near_prune_radius"):
+        part.step(1, model, None)  # type: ignore[arg-type]
+
+
+def test_eval_keep_leaves_out_what_is_near_the_rendered_cameras(seed: int) -> None:
+    scene, _ = make_scene(seed=seed)
+    part = _part(scene)
+    cams = [v.camera for v in scene.test]
+    centres = torch.stack([c.center.double() for c in cams])
+    model, inside = _model_near(centres, part.radius, seed)
+    assert torch.equal(part.eval_keep(model.means, cams), ~inside)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("near_prune_radius", 0.0), ("near_prune_radius", math.inf),
+                         ("near_prune_every", 0)]
+)  # fmt: skip
+def test_bad_settings_are_config_errors(field: str, value: float) -> None:
+    with pytest.raises(ConfigError, match=field):
+        preset("llff", near_prune=True, **{field: value})
+
+
+def test_start_is_compressed_with_the_schedule() -> None:
+    cfg = preset("llff", near_prune=True).with_iterations(1500)
+    assert cfg.near_prune_start == 500  # 2000 of 6000, scaled by 1500 / 6000
+
+
+@pytest.mark.shared_data
+def test_llff_loader_keeps_the_spiral_with_the_training_intrinsics(shared_data) -> None:  # type: ignore[no-untyped-def]
+    scene = load_scene(shared_data / "nerf_llff_data" / "juicebox_table", views=3)
+    assert len(scene.render_path) == 180
+    ref = scene.train[0].camera
+    for cam in scene.render_path[::45]:
+        assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height) == (
+            ref.fx, ref.fy, ref.cx, ref.cy, ref.width, ref.height
+        )  # fmt: skip
+    centres = torch.stack([c.center.double() for c in scene.render_path])
+    assert bool(torch.isfinite(centres).all())
