@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-service
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-service
 
 venv: $(VENV)/.installed
 
@@ -53,6 +53,9 @@ bench-quality: venv
 
 bench-iteration: venv
 	$(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
+
+bench-parts: venv
+	$(PY) -m sparsesplat.engine.bench.parts $(BENCH_ARGS)
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)
