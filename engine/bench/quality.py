@@ -126,15 +126,15 @@ def variant_overrides(variant: str) -> dict[str, Any]:
     if kind == "prior" and rest:
         return {"depth_prior": rest}
     if kind == "set" and rest:
+        from sparsesplat.engine.train.config import ConfigError, parse_override
+
         overrides: dict[str, Any] = {}
         for item in rest.split("+"):
-            key, sep, value = item.partition("=")
-            if not sep or not key:
-                raise SystemExit(f"bench-quality: variant {variant!r}: expected set:FIELD=JSON")
             try:
-                overrides[key] = json.loads(value)
-            except json.JSONDecodeError:
-                overrides[key] = value
+                key, value = parse_override(item)
+            except ConfigError as exc:
+                raise SystemExit(f"bench-quality: variant {variant!r}: {exc}") from None
+            overrides[key] = value
         return overrides
     raise SystemExit(
         f"bench-quality: unknown variant {variant!r} (full, no_depth, prior:KIND, iters:N, "

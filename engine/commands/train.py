@@ -5,7 +5,6 @@ No torch import at module level (the CLI imports this module to build its parser
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 import time
@@ -103,15 +102,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    from sparsesplat.engine.train.config import ConfigError, parse_override
+
     out: dict[str, Any] = {}
     for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise CommandError(f"--set {item!r}: expected FIELD=JSON, e.g. --set background=white")
         try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
+            key, value = parse_override(item)
+        except ConfigError as exc:
+            raise CommandError(f"--set {exc}") from None
+        out[key] = value
     if args.seed is not None:
         out["seed"] = args.seed
     if args.prior is not None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
 import typing
 from dataclasses import dataclass, field
@@ -554,6 +555,19 @@ PRESETS: dict[str, dict[str, Any]] = {
 PRESETS["object"] = {
     k: v for k, v in PRESETS["blender"].items() if k not in ("init_box", "background")
 } | {"preset": "object"}
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``FIELD=JSON`` → (field, value): the value as JSON when it parses (``0.3``, ``true``,
+    ``[1, 2]``), else the plain string (``background=white``). The rule of the CLI's ``--set``
+    and bench-quality's ``set:`` variants; the field and value are checked by the config."""
+    key, sep, value = item.partition("=")
+    if not sep or not key:
+        raise ConfigError(f"{item!r}: expected FIELD=JSON, e.g. background=white")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
 
 
 def preset(name: str, **overrides: Any) -> TrainConfig:

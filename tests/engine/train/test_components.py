@@ -28,7 +28,13 @@ from sparsesplat.engine.losses import (
     scale_regularizer,
     shape_regularizer,
 )
-from sparsesplat.engine.train.config import PRESETS, ConfigError, TrainConfig, preset
+from sparsesplat.engine.train.config import (
+    PRESETS,
+    ConfigError,
+    TrainConfig,
+    parse_override,
+    preset,
+)
 from sparsesplat.engine.train.schedule import position_lr
 from tests.engine.numerics import FLOOR_ULPS, UNIT_ROUNDOFF, assert_float32_close
 
@@ -378,3 +384,19 @@ def test_with_iterations_compresses_the_schedule(seed: int) -> None:
     assert longer.iterations == 9000 and longer.densify_until == base.densify_until
     with pytest.raises(ConfigError, match="iterations"):
         base.with_iterations(0)
+
+
+@pytest.mark.parametrize(
+    ("item", "want"),
+    [("lambda_dssim=0.3", ("lambda_dssim", 0.3)), ("dropout=true", ("dropout", True)),
+     ("background=white", ("background", "white")), ("init_box=[[0,0,0],[1,1,1]]",
+     ("init_box", [[0, 0, 0], [1, 1, 1]])), ("extra={\"a\": 1}", ("extra", {"a": 1}))],
+)  # fmt: skip
+def test_override_values_are_json_or_plain_strings(item: str, want: tuple) -> None:
+    assert parse_override(item) == want
+
+
+@pytest.mark.parametrize("item", ["lambda_dssim", "=0.3", ""])
+def test_override_without_field_and_value_names_the_form(item: str) -> None:
+    with pytest.raises(ConfigError, match="FIELD=JSON"):
+        parse_override(item)
