@@ -21,12 +21,6 @@ from sparsesplat.worker.heartbeat import JobHeartbeat
 
 log = logging.getLogger("sparsesplat.worker")
 
-BUDGET_PROBE_ITERATIONS = 10
-"""Iterations timed at the start of a run to turn a time budget into an iteration count."""
-BUDGET_GROWTH_FACTOR = 1.5
-"""Later iterations cost more than the first (densification adds Gaussians): measured 0.31 s at
-20k and 0.42 s at 50k Gaussians against ~0.25 s at the start; the probe's cost is scaled by this."""
-
 
 @dataclass
 class Outcome:
@@ -84,25 +78,6 @@ def _preset_for(scene: Any) -> tuple[str, str]:
     return name, reason
 
 
-def _budget_iterations(scene: Any, config: Any, priors: Any, budget_s: float, device: str) -> int:
-    """Iterations that fit ``budget_s`` seconds, from a short timed probe on this scene."""
-    import dataclasses
-
-    from sparsesplat.engine.train import Trainer
-
-    probe_cfg = dataclasses.replace(
-        config.with_iterations(BUDGET_PROBE_ITERATIONS),
-        eval_interval_s=0.0,
-        eval_every=None,
-        eval_lpips=False,
-        export=False,
-    )
-    probe = Trainer(scene, probe_cfg, priors, None, None, device)
-    result = probe.run()
-    per_iteration = max(result.seconds / max(result.iteration, 1), 1e-4) * BUDGET_GROWTH_FACTOR
-    return max(1, min(int(budget_s / per_iteration), config.iterations * 4))
-
-
 def run_job(
     claim: Claim, store: JobStore, storage: Storage, settings: Settings, beat: JobHeartbeat
 ) -> Outcome:
@@ -135,6 +110,7 @@ def _train(
 ) -> Outcome:
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.train import ProgressRecord, StateChange, Trainer
+    from sparsesplat.engine.train.budget import iterations_for_budget
     from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME
 
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
@@ -156,7 +132,7 @@ def _train(
     checkpoint = run_dir / CHECKPOINT_NAME
     if spec.time_budget_s is not None and not checkpoint.exists():
         beat.set_phase("timing")
-        n = _budget_iterations(scene, config, priors, spec.time_budget_s, device)
+        n = iterations_for_budget(scene, config, priors, spec.time_budget_s, device)
         config = config.with_iterations(n)
         (run_dir / "budget.json").write_text(f'{{"iterations": {n}}}')
     elif spec.time_budget_s is not None and (run_dir / "budget.json").exists():

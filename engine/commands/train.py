@@ -5,6 +5,7 @@ No torch import at module level (the CLI imports this module to build its parser
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import threading
 import time
@@ -79,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="train this many iterations; fewer than the preset's compress its schedule",
+    )
+    parser.add_argument(
+        "--time-budget",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="train for about this many seconds instead: a 10-iteration probe times this "
+        "scene and the preset's schedule is compressed to fit",
     )
     parser.add_argument(
         "--prior",
@@ -253,6 +262,13 @@ def _run(args: argparse.Namespace) -> int:
     overrides = _overrides(args)
     if args.iterations is not None and args.iterations < 1:
         raise CommandError(f"--iterations must be >= 1, got {args.iterations}")
+    if args.time_budget is not None:
+        if not (math.isfinite(args.time_budget) and args.time_budget > 0):
+            raise CommandError(f"--time-budget must be > 0 seconds, got {args.time_budget}")
+        if args.iterations is not None:
+            raise CommandError("give either --iterations or --time-budget, not both")
+        if args.resume:
+            raise CommandError("--time-budget cannot be combined with --resume")
     scene = load_scene(args.scene, views=args.views)
     if args.preset:
         name, reason = args.preset, "--preset"
@@ -270,6 +286,14 @@ def _run(args: argparse.Namespace) -> int:
         from sparsesplat.engine.priors import compute_priors
 
         priors = compute_priors(scene, config.depth_prior)
+    if args.time_budget is not None:
+        from sparsesplat.engine.train.budget import iterations_for_budget
+
+        n = iterations_for_budget(scene, config, priors, args.time_budget, device)
+        config = config.with_iterations(n)
+        emit({"kind": "budget", "seconds": args.time_budget, "iterations": n})
+        if not args.json and not args.quiet:
+            print(f"time budget {args.time_budget:g} s: {n} iterations", file=sys.stderr)
 
     bar: ProgressLine | None = None
 

@@ -131,6 +131,10 @@ BAD: list[tuple[str, Any, Any, list[str], list[str]]] = [
     ("field typo", None, None, ["--set", "lamda_dssim=0.2"], ["did you mean lambda_dssim?"]),
     ("field type", None, None, ["--set", "iterations=many"], ["iterations must be int"]),
     ("too many views", None, None, ["--views", "9"], ["views=9 training views requested"]),
+    ("budget 0", None, None, ["--time-budget", "0"], ["--time-budget must be > 0 seconds"]),
+    ("budget nan", None, None, ["--time-budget", "nan"], ["--time-budget must be > 0 seconds"]),
+    ("budget and iterations", None, None, ["--time-budget", "5"],
+     ["give either --iterations or --time-budget"]),
 ]  # fmt: skip
 
 
@@ -160,3 +164,16 @@ def test_missing_scene_folder_and_cuda_on_a_cpu_torch(tmp_path: Path) -> None:
     assert result.returncode == 2, result.stderr[-3000:]
     assert "--device cuda" in result.stderr and "use --device cpu" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_time_budget_fits_the_iterations_to_a_timed_probe(tmp_path: Path) -> None:
+    scene = write_object_scene(tmp_path / "s", size=24)
+    i = SMOKE.index("--iterations")
+    args = [*SMOKE[:i], *SMOKE[i + 2 :], "--time-budget", "2", "--json"]
+    result = run_cli("train", str(scene), "--out", str(tmp_path / "run"), *args)
+    assert result.returncode == 0, result.stderr[-3000:]
+    events = [strict_json(line) for line in result.stdout.splitlines()]
+    budget = next(e for e in events if e["kind"] == "budget")
+    final = next(e for e in events if e["kind"] == "result")
+    assert budget["seconds"] == 2.0 and budget["iterations"] >= 1
+    assert final["iterations"] == budget["iterations"]
