@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import Any
 
 from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
-from sparsesplat.engine.errors import PriorError
 
 COLUMNS = [
     "scene",
@@ -246,12 +245,8 @@ class _PriorCache:
     def get(self, scene_path: Path, scene: Any, kind: str) -> Any:
         key = (str(scene_path), kind)
         if key not in self._cache:
-            try:
-                from sparsesplat.engine.priors import compute_priors
-            except ImportError as exc:
-                raise PriorError(
-                    f"depth prior {kind!r}: priors module unavailable: {exc}"
-                ) from None
+            from sparsesplat.engine.priors import compute_priors
+
             self._cache[key] = compute_priors(scene, kind)
         return self._cache[key]
 
