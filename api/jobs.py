@@ -91,6 +91,10 @@ class JobSpec(BaseModel):
     preset's."""
     consistency_weight: float | None = Field(default=None, ge=0, le=10)
     """Weight of the multi-view warp-consistency term (0: off); None: the preset's."""
+    depth_min_agreement: float | None = Field(default=None, ge=-1, le=1)
+    """Skip the depth prior on training views whose depth ranks pixels unlike the photos' own
+    multi-view geometry (Spearman rank correlation with a plane sweep below this; 0.3 is a
+    sensible value); None: the preset's (every view keeps its prior)."""
     near_prune: bool | None = None
     """Delete Gaussians within half the scene's near bound of its render path (LLFF: the
     spiral through every pose) in training, and leave those near a held-out camera out of

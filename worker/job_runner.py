@@ -57,6 +57,7 @@ def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
         "dtu_background",
         "consistency_weight",
         "near_prune",
+        "depth_min_agreement",
     ):
         value = getattr(spec, key)
         if value is not None:

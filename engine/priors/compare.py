@@ -22,10 +22,17 @@ MIN_PIXELS = 50
 
 
 def _ranks(x: Tensor) -> Tensor:
-    """Ranks 0..n-1 (ties broken by order; continuous depths rarely tie)."""
-    order = torch.argsort(x)
-    ranks = torch.empty_like(order, dtype=torch.float64)
-    ranks[order] = torch.arange(x.numel(), dtype=torch.float64)
+    """Ranks 0..n-1, tied values sharing the mean of their ranks (Spearman's definition: a
+    constant or a coarsely quantised prior must not get an order from the sort)."""
+    values, order = torch.sort(x)
+    n = x.numel()
+    first = torch.ones(n, dtype=torch.bool, device=x.device)
+    first[1:] = values[1:] != values[:-1]
+    group = torch.cumsum(first.long(), 0) - 1
+    starts = torch.nonzero(first).squeeze(1)
+    ends = torch.cat([starts[1:], starts.new_tensor([n])]) - 1
+    ranks = torch.empty(n, dtype=torch.float64, device=x.device)
+    ranks[order] = ((starts + ends).double() / 2)[group]
     return ranks
 
 

@@ -134,6 +134,12 @@ class TrainConfig:
     """Prior kind to compute ('pydnet', 'plane_sweep', 'onnx:FILE', 'user') or 'none' for no
     depth loss. PyDNet++ is the default because it had the best AVGE of the three on DTU, LLFF
     and Blender scenes (comparison in docs/trainer.md)."""
+    depth_min_agreement: float | None = None
+    """Skip the depth passes on the training views whose prior disagrees with the scene's own
+    multi-view geometry: the Spearman rank correlation between the prior and a plane-sweep
+    depth of the same view (on the sweep's confident pixels) below this. None: every view uses
+    its prior. A view with too few confident sweep pixels to judge keeps its prior; when every
+    view is skipped the depth part is not built at all (a no-depth run)."""
     hard_depth: bool = True
     """Hard-depth pass (opacity 0.95, gradients to centres only)."""
     soft_depth: bool = True
@@ -313,6 +319,10 @@ class TrainConfig:
             raise ConfigError(f"consistency_weight must be >= 0, got {self.consistency_weight}")
         if not (math.isfinite(self.near_prune_radius) and self.near_prune_radius > 0.0):
             raise ConfigError(f"near_prune_radius must be > 0, got {self.near_prune_radius}")
+        if self.depth_min_agreement is not None and not -1.0 <= self.depth_min_agreement <= 1.0:
+            raise ConfigError(
+                f"depth_min_agreement must be in [-1, 1] or None, got {self.depth_min_agreement}"
+            )
         if self.near_prune_every < 1:
             raise ConfigError(f"near_prune_every must be >= 1, got {self.near_prune_every}")
         if self.eval_max_views is not None and self.eval_max_views < 1:

@@ -120,10 +120,14 @@ class DepthRegularizer:
         view_names: list[str],
         raster: Raster,
         generator: torch.Generator,
+        views: set[int] | None = None,
     ) -> None:
         """Check and prepare ``priors`` (one PriorDepth or (H, W) tensor per training view,
-        aligned with ``images`` (3, H, W)); SceneError names the view of a bad one."""
+        aligned with ``images`` (3, H, W)); SceneError names the view of a bad one. ``views``:
+        the training views whose prior is used (None: all)."""
         self.settings = settings
+        self.views = views
+        """Positions of the training views the depth passes run on (None: every view)."""
         self.raster = raster
         self.generator = generator
         if priors is None or len(priors) != len(images):
@@ -169,6 +173,8 @@ class DepthRegularizer:
         schedules say so."""
         s, g, it = self.settings, gaussians, iteration
         if it % s.every != 0 or (s.until is not None and it >= s.until):
+            return
+        if self.views is not None and view.index not in self.views:
             return
         n = len(g)
         empty = g.means.new_zeros(n, 0)

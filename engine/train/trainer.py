@@ -64,6 +64,7 @@ from sparsesplat.engine.train.dense_init import (
     init_priors,
 )
 from sparsesplat.engine.train.densify import DensifySettings, DensifyStrategy, ModelCollapsed
+from sparsesplat.engine.train.depth_gate import agreeing_views
 from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSettings
 from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
 from sparsesplat.engine.train.dtu_background import DtuBackground, DtuPartSettings
@@ -168,17 +169,24 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(config.seed)
         self._setup_data()
         self.depth: DepthRegularizer | None = None
-        """The depth regulariser; None when the config uses no depth."""
+        """The depth regulariser; None when the config uses no depth (or the agreement gate
+        left no view with its prior)."""
+        self.depth_agreement: list[float] | None = None
+        """Per training view, the prior's Spearman agreement with a plane sweep (only when
+        ``depth_min_agreement`` is set)."""
         if self.config.uses_depth:
-            self.depth = DepthRegularizer(
-                DepthSettings.from_config(self.config),
-                priors,
-                self.images,
-                self.background,
-                [v.name for v in self.scene.train],
-                self._raster,
-                self.generator,
-            )
+            views = self._depth_views(priors)
+            if views is None or views:
+                self.depth = DepthRegularizer(
+                    DepthSettings.from_config(self.config),
+                    priors,
+                    self.images,
+                    self.background,
+                    [v.name for v in self.scene.train],
+                    self._raster,
+                    self.generator,
+                    views,
+                )
         self.init_note: str | None = None
         """How the initial Gaussians were made when ``init='dense'`` (also in the metrics)."""
         self._setup_model(init_depth if init_depth is not None else priors)
@@ -256,6 +264,21 @@ class Trainer:
         near = cfg.raster_near if cfg.raster_near is not None else 0.2 * self.scene.near
         self.raster_near = near if near > 0 else 0.01
         """View-z culling distance used by every render of this run."""
+
+    def _depth_views(self, priors: list[Any] | None) -> set[int] | None:
+        """The training views whose prior the depth passes use (None: all of them)."""
+        threshold = self.config.depth_min_agreement
+        if threshold is None or priors is None or len(priors) != len(self.scene.train):
+            return None  # (a missing or misaligned prior is reported by the regulariser)
+        cache = self.out_dir / "priors" if self.out_dir is not None else None
+        views, self.depth_agreement = agreeing_views(self.scene, priors, threshold, cache)
+        if len(views) < len(priors):
+            log.info(
+                "depth prior skipped on %d of %d views (agreement %s < %g)",
+                len(priors) - len(views), len(priors),
+                ", ".join(f"{r:.2f}" for r in self.depth_agreement), threshold,
+            )  # fmt: skip
+        return views
 
     def _initial_points(self, depth: list[Any] | None) -> tuple[Tensor, Tensor | None]:
         """Hook ``init_points``: points (N, 3) and, from the dense init, their colours."""
@@ -659,6 +682,9 @@ class Trainer:
             metrics["init"] = self.init_note
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
+        if self.depth_agreement is not None:
+            metrics["depth_agreement"] = json_safe(self.depth_agreement)
+            metrics["depth_views"] = sorted(self.depth.views or []) if self.depth else []
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._emit(StateChange("checkpointing", self.iteration))

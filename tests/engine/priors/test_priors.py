@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,29 @@ def test_warp_error_prefers_true_depth() -> None:
     assert result["fraction"] > 0.3
     assert result["error"] < 0.5 * result["constant_depth_error"]
     assert result["error"] < 0.03
+
+
+def _average_ranks(values: list[float]) -> list[float]:
+    """Spearman's ranks by definition: (number smaller) + (number of equal others) / 2."""
+    return [sum(v < x for v in values) + (sum(v == x for v in values) - 1) / 2 for x in values]
+
+
+@pytest.mark.parametrize("levels", [3, 8, 1000])
+def test_spearman_shares_ranks_between_ties(seed: int, levels: int) -> None:
+    from sparsesplat.engine.priors.compare import spearman
+
+    g = torch.Generator().manual_seed(seed)
+    a = torch.randint(0, levels, (200,), generator=g).double()
+    b = a + torch.randint(0, levels, (200,), generator=g).double()
+    ra = torch.tensor(_average_ranks(a.tolist()), dtype=torch.float64)
+    rb = torch.tensor(_average_ranks(b.tolist()), dtype=torch.float64)
+    want = float(torch.corrcoef(torch.stack([ra, rb]))[0, 1])
+    # Ranks are exact (halves of integers < 200); the rest is a float64 correlation of 200
+    # terms: a few hundred roundings of numbers below 200^2.
+    assert abs(spearman(a, b) - want) < 1e-12
+
+
+def test_spearman_of_a_constant_is_nan() -> None:
+    from sparsesplat.engine.priors.compare import spearman
+
+    assert math.isnan(spearman(torch.full((100,), 3.0), torch.arange(100.0)))
