@@ -37,12 +37,15 @@ def _overrides(variant: str) -> dict[str, Any]:
     return {} if variant == "base" else variant_overrides(variant)
 
 
-def build(variant: str, gaussians: int, seed: int = 0) -> tuple[Any, float]:
-    """A trainer for ``variant`` past every schedule start, and the seconds it took to build."""
+def build(
+    variant: str, gaussians: int, seed: int = 0, size: tuple[int, int] = (504, 378)
+) -> tuple[Any, float]:
+    """A trainer for ``variant`` past every schedule start, and the seconds it took to build;
+    ``size``: (width, height) of the synthetic views."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
 
-    scene, priors = make_scene(seed=seed, width=504, height=378, n_gaussians=400)
+    scene, priors = make_scene(seed=seed, width=size[0], height=size[1], n_gaussians=400)
     cfg = preset(
         "llff", init_points=gaussians, dense_init_points=gaussians, export=False,
         eval_interval_s=0, densify_until=0, clean_iterations=(), iterations=10_000,

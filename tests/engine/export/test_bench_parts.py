@@ -17,7 +17,7 @@ PART_ATTRIBUTES = {
 
 @pytest.mark.parametrize("variant", [v for v in DEFAULT_VARIANTS if v != "set:init=dense"])
 def test_a_variant_switches_on_its_part_only(variant: str) -> None:
-    trainer, setup = build(variant, gaussians=300)
+    trainer, setup = build(variant, gaussians=300, size=(96, 72))
     assert setup > 0
     for v, attribute in PART_ATTRIBUTES.items():
         assert (getattr(trainer, attribute) is not None) == (v == variant), attribute
