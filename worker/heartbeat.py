@@ -54,9 +54,14 @@ class JobHeartbeat:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop beating (the job is over in this worker)."""
+        """Stop beating (the job is over in this worker), after one last beat so the stored
+        progress shows where training ended rather than the previous beat's iteration."""
         self._stop.set()
         self._thread.join(timeout=10)
+        try:
+            self._beat()
+        except Exception:  # the outcome is stored next; a stale progress is not worth failing it
+            log.warning("final heartbeat failed", exc_info=True, extra={"job_id": self.job_id})
 
     def attach(self, trainer: Any, total: int) -> None:
         """Follow ``trainer`` (reads its iteration and seconds; sets its stop flag)."""

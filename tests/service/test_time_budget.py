@@ -28,3 +28,5 @@ def test_time_budget_sets_the_iteration_count_from_a_timed_probe(
     # progress it reported counted towards that total.
     assert model["iterations"] == budget["iterations"] >= 1
     assert done["progress"]["total"] == budget["iterations"]
+    # The last beat ran after training: a finished job shows its final iteration.
+    assert done["progress"]["iteration"] == budget["iterations"]
