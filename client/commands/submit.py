@@ -11,8 +11,9 @@ import json
 import posixpath
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
+from sparsesplat.api.jobs import PresetName
 from sparsesplat.client.commands.common import add_connection, client, dump, guarded
 from sparsesplat.client.errors import InvalidInput, JobFailed
 from sparsesplat.client.scenes import Upload, read_scene
@@ -33,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     spec.add_argument("--spec", help="JobSpec as JSON text or a .json file")
     spec.add_argument("--iterations", type=int, help="iterations to train")
     spec.add_argument("--time-budget", type=float, metavar="S", help="training seconds instead")
-    spec.add_argument("--preset", choices=["llff", "dtu", "blender", "default"])
+    spec.add_argument("--preset", choices=list(get_args(PresetName)))
     spec.add_argument("--seed", type=int)
     parser.add_argument("--idempotency-key", help="reuse to make a retried submission safe")
     parser.add_argument("--wait", action="store_true", help="wait for the end, with progress")

@@ -321,3 +321,17 @@ def test_cli_render_of_a_local_checkpoint_without_torch_names_the_engine_extra(
     )  # fmt: skip
     assert done.returncode == 3, done.stderr
     assert "pip install 'sparsesplat[engine]'" in done.stderr
+
+
+def test_submit_offers_every_preset_the_spec_accepts() -> None:
+    import subprocess
+    import sys
+    from typing import get_args
+
+    from sparsesplat.api.jobs import PresetName
+
+    help_text = subprocess.run(
+        [sys.executable, "-m", "sparsesplat", "submit", "--help"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "{" + ",".join(get_args(PresetName)) + "}" in help_text
