@@ -20,7 +20,8 @@ state (``engine/train/parts.py`` says what a part is):
 Deviations from the reference, on purpose: guarded depth loss (empty selection, zero variance),
 no unused SH tensors, geometry features cached per evaluation, a fixed hash-grid resolution
 (scale-free), an optional cap on the number of Gaussians, no Blender scene-name hacks.
-Optional parts, each built only when its switch is on (the DTU preset turns dense init on):
+Optional parts, each built only when its switch is on (the DTU preset turns dense init and the
+background pieces on):
 DropGaussian (``dropout.py``), dense init (``dense_init.py``), DTU background handling
 (``dtu_background.py``), warp consistency (``consistency.py``), LLFF near-plane pruning with a
 radius relative to the scene's near bound (``near_prune.py``); ``parts.py`` lists the hooks.
