@@ -128,7 +128,7 @@ class NearPrune:
     cameras at evaluation. Hooks: :meth:`step` (after densification, before the photometric
     optimizer step) and :meth:`eval_keep` (the recorder renders only the kept rows)."""
 
-    def __init__(self, settings: NearPruneSettings, scene: Scene, device: torch.device) -> None:
+    def __init__(self, settings: NearPruneSettings, scene: Scene) -> None:
         """``scene``: its ``near`` sets the radius, its render path (else its training cameras)
         the cameras pruned against in training."""
         self.settings = settings
@@ -137,7 +137,6 @@ class NearPrune:
         path = scene.render_path or [v.camera for v in scene.train]
         self.path_centres = torch.stack([c.center.detach().cpu().double() for c in path])
         """(M, 3) float64 centres of the cameras pruned against in training."""
-        self.device = device
         self.pruned = 0
         """Gaussians deleted in training so far (reported in the metrics)."""
 

@@ -215,7 +215,7 @@ class Trainer:
         self.near_prune: NearPrune | None = None
         """Near-plane pruning; None unless ``config.near_prune``."""
         if near_prune.enabled:
-            self.near_prune = NearPrune(near_prune, self.scene, self.device)
+            self.near_prune = NearPrune(near_prune, self.scene)
         self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
         self.recorder = Recorder(
             RecordSettings.from_config(self.config),

@@ -15,20 +15,20 @@ import torch
 
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.synthetic import make_scene
-from sparsesplat.engine.train import Trainer, preset
+from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config import ConfigError
 from sparsesplat.engine.train.depth_gate import agreeing_views, as_prior
 
+from .test_trainer_parts import small as parts_config
+
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]
+    """The trainer-parts smoke config, 20 iterations."""
     base: dict[str, Any] = dict(
-        iterations=20, init_points=200, eval_interval_s=0, eval_lpips=False, export=False,
-        hash_log2_size=14, lr_means_start=0, lr_means_steps=20, soft_depth_start=5,
-        densify_from=5, densify_until=15, densify_interval=5, depth_smooth_start=10,
-        checkpoint_interval_s=0, threads=1,
+        iterations=20, lr_means_steps=20, soft_depth_start=5, densify_until=15,
+        depth_smooth_start=10,
     )  # fmt: skip
-    base.update(overrides)
-    return preset("llff", **base)
+    return parts_config(**(base | overrides))
 
 
 @pytest.mark.parametrize("scene_seed", [0, 1])

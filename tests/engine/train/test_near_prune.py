@@ -198,7 +198,7 @@ def test_render_path_cameras_are_valid_cameras() -> None:
 
 def _part(scene: Scene, radius: float = 0.5, every: int = 25, after: int = 0) -> NearPrune:
     settings = NearPruneSettings(True, radius, NearPruneSchedule(every=every, after=after))
-    return NearPrune(settings, scene, torch.device("cpu"))
+    return NearPrune(settings, scene)
 
 
 def _model_near(centres: torch.Tensor, radius: float, seed: int) -> tuple[Gaussians, torch.Tensor]:
