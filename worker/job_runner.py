@@ -34,9 +34,12 @@ class Outcome:
     """Final metrics and sizes when it succeeded."""
 
 
-def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
+def build_config(
+    spec: JobSpec, scene: Any, iterations: int | None = None
+) -> tuple[Any, str | None]:
     """The engine TrainConfig a spec asks for, and why its preset was chosen (None when the
-    spec named it)."""
+    spec named it). ``iterations`` (from a time budget) replaces the spec's run length; the
+    preset's reference schedule is compressed to it either way."""
     from sparsesplat.engine.train import preset
 
     reason = None
@@ -64,9 +67,9 @@ def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
             overrides[key] = "user" if (key == "depth_prior" and value == "uploaded") else value
     if spec.record_interval_s is not None:
         overrides["eval_interval_s"] = spec.record_interval_s
-    config = preset(name, **overrides)
-    if spec.iterations is not None:
-        config = config.with_iterations(spec.iterations)
+    config = preset(
+        name, iterations=spec.iterations if iterations is None else iterations, **overrides
+    )
     return config, reason
 
 
@@ -134,11 +137,11 @@ def _train(
     if spec.time_budget_s is not None and not checkpoint.exists():
         beat.set_phase("timing")
         n = iterations_for_budget(scene, config, priors, spec.time_budget_s, device)
-        config = config.with_iterations(n)
+        config = _with_length(spec, config, n, settings)
         (run_dir / "budget.json").write_text(f'{{"iterations": {n}}}')
     elif spec.time_budget_s is not None and (run_dir / "budget.json").exists():
         n = int(json.loads((run_dir / "budget.json").read_text())["iterations"])
-        config = config.with_iterations(n)
+        config = _with_length(spec, config, n, settings)
     records: list[dict[str, Any]] = []
 
     def on_progress(event: Any) -> bool:
@@ -205,6 +208,13 @@ def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
         write_report(records, run_dir, plot=True)
     except Exception:  # a plot is a convenience: never fail a job over it
         log.warning("could not write the metrics series", exc_info=True)
+
+
+def _with_length(spec: JobSpec, config: Any, iterations: int, settings: Settings) -> Any:
+    """``config`` rebuilt for a run of ``iterations`` (a time budget's), its preset's schedule
+    compressed from the reference; the preset already chosen is kept, not chosen again."""
+    named = spec.model_copy(update={"preset": config.preset})
+    return _with_service_settings(build_config(named, None, iterations)[0], settings)
 
 
 def _with_service_settings(config: Any, settings: Settings) -> Any:

@@ -7,10 +7,15 @@ and record views, iterations, seconds, Gaussians, PSNR, SSIM, LPIPS and AVGE. Va
 - ``full``: the preset as is (its default depth prior);
 - ``no_depth``: the same without depth regularization (``depth_prior='none'``);
 - ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...);
-- ``iters:N``: the preset's whole schedule compressed to N iterations;
+- ``iters:N``: the preset's whole reference schedule compressed to N iterations (this
+  variant's length wins over ``--iterations``);
 - ``set:FIELD=JSON+FIELD=JSON``: the preset with these TrainConfig overrides (one part
-  switched on or off, a schedule, ...), e.g. ``set:iterations=1500`` or
+  switched on or off, a schedule field, ...), e.g. ``set:dropout=true`` or
   ``set:depth_prior="none"+color_model="sh"``.
+
+Every entry trains the preset's default run length (``PRESET_ITERATIONS``) unless
+``--iterations`` or ``iters:N`` asks for another; either compresses the preset's reference
+schedule.
 
 ``--seeds 0,1,2`` trains every entry once per seed; the summary table gives the mean and
 standard deviation over seeds (run-to-run spread with 3 views is about 1 dB, as large as many
@@ -141,26 +146,26 @@ def variant_overrides(variant: str) -> dict[str, Any]:
     )
 
 
-def variant_config(base: Any, variant: str) -> Any:
-    """The config of ``variant`` derived from the preset config ``base`` (validated).
+def variant_config(name: str, variant: str, seed: int = 0, iterations: int | None = None) -> Any:
+    """The config of ``variant`` of preset ``name`` (validated), trained ``iterations``
+    iterations (default: the preset's run length).
 
-    ``iters:N`` is the preset's schedule compressed to N iterations
-    (``TrainConfig.with_iterations``), e.g. ``iters:2000``; any other variant is a set of
+    ``iters:N`` is the preset's reference schedule compressed to N iterations, e.g.
+    ``iters:2000`` (it takes precedence over ``iterations``); any other variant is a set of
     field overrides (:func:`variant_overrides`)."""
     from sparsesplat.engine.train import preset
 
     kind, _, count = variant.partition(":")
     if kind == "iters":
         try:
-            return base.with_iterations(int(count))
+            iterations = int(count)
         except ValueError:
             raise SystemExit(f"bench-quality: variant {variant!r}: expected iters:N") from None
+        return preset(name, iterations=iterations, seed=seed)
     overrides = variant_overrides(variant)
-    if not overrides:
-        return base
-    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
-    fields.pop("preset")
-    return preset(base.preset, **{**fields, **overrides})
+    if "iterations" in overrides:  # set:iterations=N means iters:N
+        iterations = overrides.pop("iterations")
+    return preset(name, iterations=iterations, seed=seed, **overrides)
 
 
 def _entry_key(row: dict[str, Any]) -> tuple[Any, ...]:
@@ -309,7 +314,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=",".join(DEFAULT_VARIANTS),
         help="comma list of full, no_depth, prior:KIND, iters:N, set:FIELD=JSON+FIELD=JSON",
     )
-    parser.add_argument("--iterations", type=int, default=None, help="override (scales schedule)")
+    parser.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help="run length of every entry but iters:N ones (default: the preset's); the "
+        "reference schedule is compressed to it",
+    )
     parser.add_argument("--views", type=int, default=None, help="training views (default: paper)")
     parser.add_argument("--out", type=Path, default=None, help="results JSON")
     parser.add_argument("--runs-dir", type=Path, default=None, help="per-run outputs")
@@ -349,7 +360,6 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train import preset
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -379,17 +389,15 @@ def run(args: argparse.Namespace) -> int:
     for scene_path in scenes:
         scene = load_scene(scene_path, views=args.views, downscale=args.downscale)
         for seed in seeds:
-            base = preset(PRESET_OF_FORMAT.get(scene.format, "default"), seed=seed)
+            preset_name = PRESET_OF_FORMAT.get(scene.format, "default")
             trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row
             for variant in variants:
                 config = dataclasses.replace(
-                    variant_config(base, variant),
+                    variant_config(preset_name, variant, seed, args.iterations),
                     eval_max_views=args.eval_max_views,
                     export=not args.no_export,
                     checkpoint_interval_s=0.0,
                 )
-                if args.iterations:
-                    config = config.with_iterations(args.iterations)
                 key = (scene.name, variant, len(scene.train), config.iterations, seed)
                 if key in done:
                     print(f"[skip] {scene.name} {variant} seed {seed}: already in {out}")
@@ -402,14 +410,14 @@ def run(args: argparse.Namespace) -> int:
                 else:
                     print(f"[run] {scene.name} {variant} seed {seed} ({config.iterations} it)")
                     sys.stdout.flush()
-                    name = variant.replace(":", "_").replace("=", "-").replace("+", "_")
+                    run_name = variant.replace(":", "_").replace("=", "-").replace("+", "_")
                     row = run_entry(
                         scene_path,
                         scene,
                         variant,
                         config,
                         priors,
-                        runs_dir / scene.name / f"{name}_seed{seed}",
+                        runs_dir / scene.name / f"{run_name}_seed{seed}",
                         args.device,
                     )
                     if row.get("error"):

@@ -34,15 +34,20 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 """Presets in the order ``--help`` lists them (``engine.train.config.PRESETS``)."""
 
 _PRESET_HELP = {
-    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe",
-    "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views",
-    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box",
+    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe; "
+    "1500 iterations",
+    "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 6000 iterations",
+    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
+    "1500 iterations",
     "object": "an object on an empty background (images with alpha, or a plain white/black "
-    "backdrop), any unit: the Blender recipe with the init box from the cameras",
-    "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF recipe",
+    "backdrop), any unit: the Blender recipe with the init box from the cameras; "
+    "1500 iterations",
+    "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
+    "recipe; 1500 iterations",
 }
-# When to use each preset. Kept here, not in engine.train.config, because this module must not
-# import torch at parse time; tests/cli checks that it names exactly the presets that exist.
+# When to use each preset and its default run length. Kept here, not in engine.train.config,
+# because this module must not import torch at parse time; tests/cli checks that it names
+# exactly the presets that exist, with their PRESET_ITERATIONS.
 
 EPILOG = (
     "presets (chosen from the scene when --preset is not given; the choice and the reason are "
@@ -79,7 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--iterations",
         type=int,
         default=None,
-        help="train this many iterations; fewer than the preset's compress its schedule",
+        help="train this many iterations (default: the preset's, see below); the preset's "
+        "6000-iteration reference schedule is compressed or kept to fit",
     )
     parser.add_argument(
         "--time-budget",
@@ -260,7 +266,11 @@ def _run(args: argparse.Namespace) -> int:
 
     device = check_device(args.device)
     overrides = _overrides(args)
-    if args.iterations is not None and args.iterations < 1:
+    if "iterations" in overrides:  # --set iterations=N means --iterations N
+        if args.iterations is not None:
+            raise CommandError("give either --iterations or --set iterations=N, not both")
+        args.iterations = overrides.pop("iterations")  # its type is checked by preset()
+    if isinstance(args.iterations, int) and args.iterations < 1:
         raise CommandError(f"--iterations must be >= 1, got {args.iterations}")
     if args.time_budget is not None:
         if not (math.isfinite(args.time_budget) and args.time_budget > 0):
@@ -274,9 +284,7 @@ def _run(args: argparse.Namespace) -> int:
         name, reason = args.preset, "--preset"
     else:
         name, reason = choose_preset(scene)
-    config = preset(name, **overrides)
-    if args.iterations is not None:
-        config = config.with_iterations(args.iterations)
+    config = preset(name, iterations=args.iterations, **overrides)
     emit({"kind": "preset", "preset": name, "reason": reason})
     if not args.json and not args.quiet:
         print(f"preset {name}: {reason}", file=sys.stderr, flush=True)
@@ -290,7 +298,7 @@ def _run(args: argparse.Namespace) -> int:
         from sparsesplat.engine.train.budget import iterations_for_budget
 
         n = iterations_for_budget(scene, config, priors, args.time_budget, device)
-        config = config.with_iterations(n)
+        config = preset(name, iterations=n, **overrides)
         emit({"kind": "budget", "seconds": args.time_budget, "iterations": n})
         if not args.json and not args.quiet:
             print(f"time budget {args.time_budget:g} s: {n} iterations", file=sys.stderr)

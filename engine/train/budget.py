@@ -2,9 +2,9 @@
 
 A short probe run on the scene itself times the first iterations; the budget divided by that
 cost (scaled up, since later iterations cost more once densification has added Gaussians) is
-the iteration count, and :meth:`TrainConfig.with_iterations` compresses the whole schedule
-(densification, depth starts, LR decay) to it. Used by the service (``time_budget_s``) and by
-``sparsesplat train --time-budget``.
+the iteration count, and the caller builds the preset at that length (``preset(name,
+iterations=n)`` compresses its reference schedule: densification, depth starts, LR decay).
+Used by the service (``time_budget_s``) and by ``sparsesplat train --time-budget``.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ GROWTH_FACTOR = 1.5
 20k and 0.42 s at 50k Gaussians against ~0.25 s at the start; the probe's cost is scaled by
 this."""
 MAX_STRETCH = 4
-"""A budget never asks for more than this many times the preset's iterations (a longer run
-keeps refining at the final learning rates, which the error-vs-time curves show is wasted)."""
+"""A budget never asks for more than this many times the config's iterations (beyond that
+the error-vs-time curves show no gain: the held-out error was best within the presets'
+default lengths)."""
 
 
 def iterations_for_budget(

@@ -13,6 +13,7 @@ import torch
 
 from sparsesplat.engine.commands import train as train_cmd
 from sparsesplat.engine.train import PRESETS
+from sparsesplat.engine.train.config import PRESET_ITERATIONS
 from tests.cli.conftest import SMOKE, run_cli, strict_json
 from tests.cli.scenes import write_object_scene
 
@@ -27,6 +28,8 @@ def test_help_lists_presets_prior_kinds_and_exit_codes() -> None:
         assert kind in text
     for name in PRESETS:
         assert f"  {name} " in text, name
+        line = train_cmd._PRESET_HELP[name]
+        assert line.endswith(f"; {PRESET_ITERATIONS[name]} iterations"), name
     assert "images have alpha" in text and "plain white/black backdrop" in text
     assert "exit codes" in text
     assert set(train_cmd.PRESET_NAMES) == set(PRESETS), "help must name exactly the presets"
@@ -129,7 +132,9 @@ BAD: list[tuple[str, Any, Any, list[str], list[str]]] = [
     ("background name typo", None, None, ["--set", "background=whte"],
      ["background must be white, black, gray or 3 numbers"]),
     ("field typo", None, None, ["--set", "lamda_dssim=0.2"], ["did you mean lambda_dssim?"]),
-    ("field type", None, None, ["--set", "iterations=many"], ["iterations must be int"]),
+    ("field type", None, None, ["--set", "init_points=many"], ["init_points must be int"]),
+    ("iterations twice", None, None, ["--set", "iterations=30"],
+     ["give either --iterations or --set iterations=N"]),
     ("too many views", None, None, ["--views", "9"], ["views=9 training views requested"]),
     ("budget 0", None, None, ["--time-budget", "0"], ["--time-budget must be > 0 seconds"]),
     ("budget nan", None, None, ["--time-budget", "nan"], ["--time-budget must be > 0 seconds"]),

@@ -7,8 +7,10 @@ import pytest
 from pydantic import ValidationError
 
 from sparsesplat.api.jobs import JobSpec
+from sparsesplat.api.settings import Settings
 from sparsesplat.engine.train import preset
-from sparsesplat.worker.job_runner import build_config
+from sparsesplat.engine.train.config import PRESET_ITERATIONS
+from sparsesplat.worker.job_runner import _with_length, build_config
 
 
 def test_unset_switches_keep_the_presets_values() -> None:
@@ -40,6 +42,20 @@ def test_each_part_switch_reaches_the_training_config() -> None:
     assert config.near_prune is True
     assert config.depth_min_agreement == pytest.approx(0.3)
     assert config.iterations == 1500
+
+
+def test_run_length_is_the_presets_default_or_the_reference_schedule_compressed() -> None:
+    default, _ = build_config(JobSpec(preset="llff"), scene=None)
+    assert default.iterations == PRESET_ITERATIONS["llff"]
+    asked, _ = build_config(JobSpec(preset="llff", iterations=3000), scene=None)
+    assert (asked.iterations, asked.densify_until) == (3000, 3000)  # longer than the default
+    # a time budget's length rebuilds the chosen preset (here dtu, as if chosen from the scene)
+    # from its reference, with the spec's switches and the deployment's settings
+    chosen, _ = build_config(JobSpec(preset="dtu", dropout=True), scene=None)
+    settings = Settings(torch_threads=1)
+    budget = _with_length(JobSpec(dropout=True), chosen, 1200, settings)
+    assert (budget.preset, budget.iterations, budget.densify_until) == ("dtu", 1200, 1200)
+    assert budget.dropout is True and budget.threads == 1
 
 
 @pytest.mark.parametrize(

@@ -32,11 +32,12 @@ def test_find_scenes(tmp_path: Path) -> None:
 
 def test_variants() -> None:
     base = preset("dtu")
-    assert quality.variant_config(base, "full") == base
-    assert not quality.variant_config(base, "no_depth").uses_depth
-    assert quality.variant_config(base, "prior:plane_sweep").depth_prior == "plane_sweep"
+    assert quality.variant_config("dtu", "full") == base
+    assert not quality.variant_config("dtu", "no_depth").uses_depth
+    assert quality.variant_config("dtu", "prior:plane_sweep").depth_prior == "plane_sweep"
+    assert quality.variant_config("dtu", "full", seed=2).seed == 2
     with pytest.raises(SystemExit, match="unknown variant"):
-        quality.variant_config(base, "bogus")
+        quality.variant_config("dtu", "bogus")
 
 
 def test_resume_skips_finished_and_reuses_identical_configs(
@@ -82,15 +83,15 @@ def test_resume_skips_finished_and_reuses_identical_configs(
 
 def test_set_variants_override_validated_fields() -> None:
     base = preset("llff")
-    config = quality.variant_config(base, 'set:lambda_dssim=0.3+color_model="sh"')
+    config = quality.variant_config("llff", 'set:lambda_dssim=0.3+color_model="sh"')
     assert (config.lambda_dssim, config.color_model) == (0.3, "sh")
     assert config.iterations == base.iterations and config.preset == "llff"
     from sparsesplat.engine.train.config import ConfigError
 
     with pytest.raises(ConfigError, match="lambda_dsim"):
-        quality.variant_config(base, "set:lambda_dsim=0.3")
+        quality.variant_config("llff", "set:lambda_dsim=0.3")
     with pytest.raises(SystemExit, match="FIELD=JSON"):
-        quality.variant_config(base, "set:lambda_dssim")
+        quality.variant_config("llff", "set:lambda_dssim")
 
 
 def test_best_error_is_the_first_time_the_best_psnr_was_reached() -> None:
@@ -125,11 +126,13 @@ def test_summary_is_mean_and_sample_std_over_seeds(tmp_path: Path) -> None:
     assert merged["summary"][0]["psnr"] == "20 ± 2"
 
 
-def test_iters_variant_compresses_the_whole_schedule() -> None:
-    base = preset("llff")
-    short = quality.variant_config(base, "iters:1500")
-    assert short.iterations == 1500
-    assert short.densify_until == base.densify_until // 4
-    assert short.soft_depth_start == base.soft_depth_start // 4
+def test_iters_variant_compresses_the_reference_schedule_and_wins_over_iterations() -> None:
+    reference = preset("llff", iterations=6000)
+    for iterations in (None, 1000):
+        short = quality.variant_config("llff", "iters:3000", iterations=iterations)
+        assert short.iterations == 3000
+        assert short.densify_until == reference.densify_until // 2
+        assert short.soft_depth_start == reference.soft_depth_start // 2
+    assert quality.variant_config("llff", "full", iterations=1000).iterations == 1000
     with pytest.raises(SystemExit, match="iters:N"):
-        quality.variant_config(base, "iters:many")
+        quality.variant_config("llff", "iters:many")

@@ -29,7 +29,9 @@ from sparsesplat.engine.losses import (
     shape_regularizer,
 )
 from sparsesplat.engine.train.config import (
+    PRESET_ITERATIONS,
     PRESETS,
+    REFERENCE_ITERATIONS,
     ConfigError,
     TrainConfig,
     parse_override,
@@ -356,6 +358,22 @@ def test_presets_and_config_errors() -> None:
         preset("llff", patch_min=9, patch_max=3)
     with pytest.raises(ConfigError, match="sh_degree"):
         preset("llff", color_model="sh", sh_degree=4)
+
+
+def test_presets_train_their_default_length_and_any_length_from_the_reference() -> None:
+    assert TrainConfig().iterations == REFERENCE_ITERATIONS
+    for name in PRESETS:
+        assert preset(name).iterations == PRESET_ITERATIONS[name], name
+    reference = preset("llff", iterations=REFERENCE_ITERATIONS)
+    assert (reference.densify_until, reference.soft_depth_start) == (6000, 1000)
+    longer = preset("llff", iterations=3000)  # longer than the default 1500, still exact
+    assert (longer.densify_until, longer.soft_depth_start) == (3000, 500)
+    # with_iterations on the compressed default can only shorten: the reason preset() exists
+    assert preset("llff").with_iterations(3000).densify_until == 1500
+    with pytest.raises(ConfigError, match="iterations must be"):
+        preset("llff", iterations="many")
+    with pytest.raises(ConfigError, match="iterations must be >= 1"):
+        preset("llff", iterations=0)
 
 
 def test_fixed_choice_fields_name_the_field_and_the_choices() -> None:
