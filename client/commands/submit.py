@@ -32,7 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     scene.add_argument("--format", choices=["folder", "llff", "blender", "dtu", "ngp"])
     spec = parser.add_argument_group("job spec")
     spec.add_argument("--spec", help="JobSpec as JSON text or a .json file")
-    spec.add_argument("--iterations", type=int, help="iterations to train")
+    spec.add_argument(
+        "--iterations", type=int, help="iterations to train (default: the preset's, 1500; dtu 6000)"
+    )
     spec.add_argument("--time-budget", type=float, metavar="S", help="training seconds instead")
     spec.add_argument("--preset", choices=list(get_args(PresetName)))
     spec.add_argument("--seed", type=int)

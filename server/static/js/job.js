@@ -108,7 +108,7 @@ export function mount(container, { jobId }) {
     actions.append(el("button.small.danger#job-delete", { type: "button", onclick: remove }, "Delete"));
     renderProgress(job.progress);
     const s = job.spec;
-    const length = s.time_budget_s ? `time budget ${fmtSeconds(s.time_budget_s)}` : s.iterations ? `${s.iterations} iterations` : "the preset's schedule";
+    const length = s.time_budget_s ? `time budget ${fmtSeconds(s.time_budget_s)}` : s.iterations ? `${s.iterations} iterations` : "the preset's length";
     const p = job.progress || {};
     const items = [
       ["Preset", `${p.preset || s.preset || "automatic"}${p.preset_reason ? ` (${p.preset_reason})` : ""}`],
