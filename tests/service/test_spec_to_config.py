@@ -25,15 +25,18 @@ def test_unset_switches_keep_the_presets_values() -> None:
 
 def test_each_part_switch_reaches_the_training_config() -> None:
     spec = JobSpec(
-        preset="llff",
+        preset="blender",  # every part below is off in this preset
         init="dense",
         dropout=True,
         dtu_background=True,
         consistency_weight=0.1,
         near_prune=True,
         depth_min_agreement=0.3,
-        iterations=1500,
+        iterations=1200,
     )
+    off = preset("blender")
+    parts = (off.init, off.dropout, off.dtu_background, off.consistency_weight, off.near_prune)
+    assert parts + (off.depth_min_agreement,) == ("random", False, False, 0.0, False, None)
     config, _ = build_config(spec, scene=None)
     assert config.init == "dense"
     assert config.dropout is True
@@ -41,7 +44,7 @@ def test_each_part_switch_reaches_the_training_config() -> None:
     assert config.consistency_weight == pytest.approx(0.1)
     assert config.near_prune is True
     assert config.depth_min_agreement == pytest.approx(0.3)
-    assert config.iterations == 1500
+    assert config.iterations == 1200
 
 
 def test_run_length_is_the_presets_default_or_the_reference_schedule_compressed() -> None:

@@ -37,7 +37,7 @@ def _finite(t: Trainer) -> bool:
 
 def test_parts_switched_off_are_not_built() -> None:
     scene, priors = make_scene(seed=0)
-    t = Trainer(scene, small(), priors)
+    t = Trainer(scene, small(dropout=False), priors)
     assert t.dropout is None and t.init_note is None and t.dtu is None
     assert not t.depth.settings.fill_background  # type: ignore[union-attr]
 
