@@ -36,7 +36,7 @@ def test_each_part_switch_reaches_the_training_config() -> None:
     )
     off = preset("blender")
     parts = (off.init, off.dropout, off.dtu_background, off.consistency_weight, off.near_prune)
-    assert parts + (off.depth_min_agreement,) == ("random", False, False, 0.0, False, None)
+    assert (*parts, off.depth_min_agreement) == ("random", False, False, 0.0, False, None)
     config, _ = build_config(spec, scene=None)
     assert config.init == "dense"
     assert config.dropout is True
