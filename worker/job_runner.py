@@ -34,12 +34,9 @@ class Outcome:
     """Final metrics and sizes when it succeeded."""
 
 
-def build_config(
-    spec: JobSpec, scene: Any, iterations: int | None = None
-) -> tuple[Any, str | None]:
+def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
     """The engine TrainConfig a spec asks for, and why its preset was chosen (None when the
-    spec named it). ``iterations`` (from a time budget) replaces the spec's run length; the
-    preset's reference schedule is compressed to it either way."""
+    spec named it); the preset's reference schedule is compressed to the spec's length."""
     from sparsesplat.engine.train import preset
 
     reason = None
@@ -67,9 +64,7 @@ def build_config(
             overrides[key] = "user" if (key == "depth_prior" and value == "uploaded") else value
     if spec.record_interval_s is not None:
         overrides["eval_interval_s"] = spec.record_interval_s
-    config = preset(
-        name, iterations=spec.iterations if iterations is None else iterations, **overrides
-    )
+    config = preset(name, iterations=spec.iterations, **overrides)
     return config, reason
 
 
@@ -213,8 +208,8 @@ def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
 def _with_length(spec: JobSpec, config: Any, iterations: int, settings: Settings) -> Any:
     """``config`` rebuilt for a run of ``iterations`` (a time budget's), its preset's schedule
     compressed from the reference; the preset already chosen is kept, not chosen again."""
-    named = spec.model_copy(update={"preset": config.preset})
-    return _with_service_settings(build_config(named, None, iterations)[0], settings)
+    sized = spec.model_copy(update={"preset": config.preset, "iterations": iterations})
+    return _with_service_settings(build_config(sized, None)[0], settings)
 
 
 def _with_service_settings(config: Any, settings: Settings) -> Any:
