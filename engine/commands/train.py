@@ -36,7 +36,7 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe; "
     "1500 iterations",
-    "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 6000 iterations",
+    "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 1500 iterations",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
     "1500 iterations",
     "object": "an object on an empty background (images with alpha, or a plain white/black "
