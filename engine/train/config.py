@@ -30,6 +30,11 @@ InitName = Literal["random", "dense"]
 """Initial Gaussians: a random box, or back-projected confident metric depth."""
 
 
+REFERENCE_ITERATIONS = 6000
+"""The run length every preset's schedule in :data:`PRESETS` is written for (the reference
+code trains each format for 6000 iterations)."""
+
+
 @dataclass
 class TrainConfig:
     """Everything one training run needs besides the scene and the depth priors."""
@@ -39,7 +44,7 @@ class TrainConfig:
     """Name of the preset this config was built from (informative)."""
     seed: int = 0
     """Seed of the trainer's private torch.Generator (init, view order, patches, splits)."""
-    iterations: int = 6000
+    iterations: int = REFERENCE_ITERATIONS
     """Number of training iterations. The dataclass defaults are the reference's
     6000-iteration LLFF schedule; :func:`preset` compresses each preset's schedule to its
     default run length (:data:`PRESET_ITERATIONS`) or to the length asked for."""
@@ -590,10 +595,6 @@ def parse_override(item: str) -> tuple[str, Any]:
     except json.JSONDecodeError:
         return key, value
 
-
-REFERENCE_ITERATIONS = 6000
-"""The run length every preset's schedule in :data:`PRESETS` is written for (the reference
-code trains each format for 6000 iterations)."""
 
 PRESET_ITERATIONS: dict[str, int] = {
     # 3 seeds per scene at 1500 compressed iterations (docs/trainer.md): beer_can 17.94 dB
