@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-service
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-service
 
 venv: $(VENV)/.installed
 
@@ -56,6 +56,9 @@ bench-iteration: venv
 
 bench-parts: venv
 	$(PY) -m sparsesplat.engine.bench.parts $(BENCH_ARGS)
+
+bench-reference-depth: venv
+	$(PY) -m sparsesplat.engine.bench.reference_depth $(BENCH_ARGS)
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)

@@ -6,7 +6,9 @@ and record views, iterations, seconds, Gaussians, PSNR, SSIM, LPIPS and AVGE. Va
 
 - ``full``: the preset as is (its default depth prior);
 - ``no_depth``: the same without depth regularization (``depth_prior='none'``);
-- ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...);
+- ``prior:KIND``: the full method with the depth prior KIND (``pydnet``, ``plane_sweep``, ...;
+  ``prior:user`` with ``--depth-dir DIR``: the depth maps ``DIR/<scene>/<view>.npy``, e.g. the
+  reference depths of ``make bench-reference-depth``);
 - ``iters:N``: the preset's whole reference schedule compressed to N iterations (this
   variant's length wins over ``--iterations``);
 - ``set:FIELD=JSON+FIELD=JSON``: the preset with these TrainConfig overrides (one part
@@ -282,7 +284,11 @@ def run_entry(
     t0 = time.perf_counter()
     try:
         depth = priors.get(scene_path, scene, config.depth_prior) if config.uses_depth else None
-        result = Trainer(scene, config, depth, out_dir, device=device).run()
+        # Dense init always back-projects the plane sweep here (what the trainer does for a
+        # monocular prior), so a metric prior:user variant changes the depth passes only.
+        dense = config.init == "dense"
+        init_depth = priors.get(scene_path, scene, "plane_sweep") if dense else None
+        result = Trainer(scene, config, depth, out_dir, device=device, init_depth=init_depth).run()
     except EngineError as exc:  # one failed entry must not end a sweep of hours
         row.update(error=f"{type(exc).__name__}: {exc}", wall_s=time.perf_counter() - t0)
         return row
@@ -332,6 +338,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--eval-max-views", type=int, default=4, help="held-out views per interim eval"
     )
     parser.add_argument("--no-export", action="store_true", help="skip .ply/.splat export")
+    parser.add_argument(
+        "--depth-dir",
+        type=Path,
+        default=None,
+        help="folder of DIR/<scene>/<view>.npy depth maps attached to the training views as "
+        "user depth, for prior:user variants (make bench-reference-depth writes one)",
+    )
     parser.add_argument("--fresh", action="store_true", help="retrain entries already in --out")
     parser.add_argument(
         "--merge",
@@ -353,6 +366,17 @@ def merge(paths: Sequence[Path], out: Path) -> int:
     print(format_table(summarize(list(rows.values())), SUMMARY_COLUMNS))
     print(f"# wrote {out}")
     return 0
+
+
+def _with_depth_folder(scene: Any, folder: Path) -> Any:
+    """``scene`` with the depth maps in ``folder`` attached (bench-quality's --depth-dir)."""
+    from sparsesplat.engine.errors import PriorError
+    from sparsesplat.engine.priors.user import attach_depth_folder
+
+    try:
+        return attach_depth_folder(scene, folder)
+    except PriorError as exc:
+        raise SystemExit(f"bench-quality: --depth-dir: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -388,6 +412,8 @@ def run(args: argparse.Namespace) -> int:
     failed = 0
     for scene_path in scenes:
         scene = load_scene(scene_path, views=args.views, downscale=args.downscale)
+        if args.depth_dir is not None:
+            scene = _with_depth_folder(scene, args.depth_dir / scene.name)
         for seed in seeds:
             preset_name = PRESET_OF_FORMAT.get(scene.format, "default")
             trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row

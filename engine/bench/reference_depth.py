@@ -1,0 +1,195 @@
+"""``make bench-reference-depth``: how right is a depth prior? Measure it against the depth of a
+model fitted to every view of the scene.
+
+With three views nothing in a scene says what its true depth is, so the question "does the
+bundled prior agree with the scene?" needs a reference. This benchmark builds one per scene:
+it trains the scene's preset without depth on *all* its posed views (every training candidate
+and every held-out view; DTU: the 9 + 25 views of the protocol, Blender: the 9 + 25), renders
+that model's depth (alpha-normalised) at the three sparse training views, and writes it to
+``OUT/<scene>/<view>.npy``. Then, per training view, it reports the Spearman rank correlation
+of the bundled prior (and of the plane sweep) with that reference depth, on the pixels the
+reference model covers (alpha > 0.5).
+
+The reference is a diagnostic, not a prior a user could have: it has seen the held-out views.
+Training the sparse-view preset against it (``make bench-quality BENCH_ARGS="--variants
+prior:user --depth-dir OUT ..."``) answers whether the method's depth passes pay when the
+prior agrees with the scene — i.e. whether a loss against the no-depth baseline is the prior's
+doing or the method's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from sparsesplat.engine.bench.common import machine_info, results_dir, write_results
+from sparsesplat.engine.bench.quality import (
+    PRESET_OF_FORMAT,
+    default_data_root,
+    find_scenes,
+    use_shared_models,
+)
+
+DEFAULT_ITERATIONS = 3000
+"""Run length of the all-view model: each of the 34-71 views is drawn about 40-90 times."""
+
+COVERED_ALPHA = 0.5
+"""Pixels where the all-view model's accumulated opacity exceeds this have a reference depth."""
+
+COLUMNS = [
+    "scene",
+    "view",
+    "all_views",
+    "fit_psnr",
+    "covered",
+    "rho_prior",
+    "rho_plane_sweep",
+    "seconds",
+]
+
+
+def all_view_scene(path: Path) -> tuple[Any, Any]:
+    """(sparse scene with the paper's split, the same scene training on every posed view it
+    has: the largest training split the format allows plus the held-out views)."""
+    from sparsesplat.engine.datasets import load_scene, source_image_count
+    from sparsesplat.engine.datasets.splits import (
+        BLENDER_TRAIN_ORDER,
+        DTU_TRAIN_ORDER,
+        LLFF_HOLDOUT,
+    )
+    from sparsesplat.engine.errors import SceneError
+
+    sparse = load_scene(path)
+    pools = {"dtu": len(DTU_TRAIN_ORDER), "blender": len(BLENDER_TRAIN_ORDER)}
+    if sparse.format == "llff":
+        count = source_image_count(path, "llff")
+        pool = count - len(range(0, count, LLFF_HOLDOUT))
+    elif sparse.format in pools:
+        pool = pools[sparse.format]
+    else:
+        raise SceneError(f"{path}: reference depth supports LLFF, DTU and Blender scenes")
+    widest = load_scene(path, views=pool)
+    seen = set(widest.train_indices)
+    extra = [(i, v) for i, v in zip(sparse.test_indices, sparse.test, strict=True) if i not in seen]
+    dense = dataclasses.replace(
+        sparse,
+        train=widest.train + [v for _, v in extra],
+        train_indices=widest.train_indices + [i for i, _ in extra],
+    )
+    return sparse, dense
+
+
+def reference_depths(trainer: Any, views: Sequence[Any]) -> list[tuple[Any, Any]]:
+    """(depth, covered) per view from ``trainer``'s model: the alpha-normalised rendered depth
+    where alpha > :data:`COVERED_ALPHA`, elsewhere the farthest covered depth (a prior must be
+    defined everywhere: the depth passes use every pixel)."""
+    import torch
+
+    out = []
+    for view in views:
+        render = trainer.render(view.camera)
+        alpha = render.alpha[0].double()
+        covered = alpha > COVERED_ALPHA
+        depth = render.depth[0].double() / alpha.clamp_min(1e-6)
+        far = float(depth[covered].max()) if bool(covered.any()) else 1.0
+        depth = torch.where(covered, depth, torch.full_like(depth, far)).float()
+        out.append((depth, covered))
+    return out
+
+
+def measure_scene(
+    path: Path, out_dir: Path, iterations: int, prior: str, seed: int
+) -> list[dict[str, Any]]:
+    """Train the all-view model of one scene, write its depths, return one row per view."""
+    import numpy as np
+
+    from sparsesplat.engine.priors import compute_priors
+    from sparsesplat.engine.priors.base import PriorDepth
+    from sparsesplat.engine.priors.compare import prior_agreement
+    from sparsesplat.engine.train import Trainer, preset
+
+    sparse, dense = all_view_scene(path)
+    config = preset(
+        PRESET_OF_FORMAT.get(sparse.format, "default"),
+        iterations=iterations,
+        seed=seed,
+        depth_prior="none",
+        init="random",
+    )
+    config = dataclasses.replace(config, export=False, checkpoint_interval_s=0.0)
+    scene_dir = out_dir / sparse.name
+    t0 = time.perf_counter()
+    trainer = Trainer(dense, config, None, scene_dir / "run")
+    result = trainer.run()
+    seconds = time.perf_counter() - t0
+    depths = reference_depths(trainer, sparse.train)
+    references = [PriorDepth(d, c.float(), metric=True, kind="reference") for d, c in depths]
+    priors = {
+        "rho_prior": compute_priors(sparse, prior),
+        "rho_plane_sweep": compute_priors(sparse, "plane_sweep"),
+    }
+    rows = []
+    for i, (view, reference) in enumerate(zip(sparse.train, references, strict=True)):
+        np.save(scene_dir / f"{view.name}.npy", reference.depth.numpy())
+        row: dict[str, Any] = {
+            "scene": sparse.name,
+            "view": view.name,
+            "all_views": len(dense.train),
+            "iterations": iterations,
+            "fit_psnr": result.metrics.get("psnr"),
+            "covered": float(reference.confidence.mean()),
+            "seconds": seconds,
+            "prior": prior,
+        }
+        for column, kind_priors in priors.items():
+            # on the pixels the reference covers and the prior trusts (a monocular prior
+            # trusts every pixel; the plane sweep only its confident matches)
+            row[column] = prior_agreement(reference, kind_priors[i], threshold=0.5)[0]
+        rows.append(row)
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m sparsesplat.engine.bench.reference_depth``."""
+    parser = argparse.ArgumentParser(
+        prog="bench-reference-depth", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("paths", nargs="*", type=Path, help="scene folders or folders of scenes")
+    parser.add_argument("--scenes", default="", help="comma list: only scenes with these names")
+    parser.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS, help="run length")
+    parser.add_argument("--prior", default="pydnet", help="the prior to compare (default pydnet)")
+    parser.add_argument("--seed", type=int, default=0, help="trainer seed of the all-view model")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument(
+        "--out-dir", type=Path, default=None, help="depth maps (default bench-results/ref-depth)"
+    )
+    parser.add_argument("--name", default="reference-depth", help="results name (JSON file)")
+    args = parser.parse_args(argv)
+    import torch
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    use_shared_models()
+    out_dir = args.out_dir or results_dir() / "reference-depth"
+    scenes = find_scenes(list(args.paths) or [default_data_root()])
+    wanted = {s for s in args.scenes.split(",") if s}
+    if wanted:
+        scenes = [p for p in scenes if p.name in wanted]
+    rows: list[dict[str, Any]] = []
+    for path in scenes:
+        print(f"[run] {path.name} ({args.iterations} iterations on every view)", flush=True)
+        rows += measure_scene(path, out_dir, args.iterations, args.prior, args.seed)
+        sys.stdout.flush()
+    write_results(args.name, rows, COLUMNS)
+    print(json.dumps({"depth_dir": str(out_dir), "machine": machine_info()["cpu"]}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
