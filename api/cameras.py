@@ -240,6 +240,11 @@ class CameraFrame(StrictModel):
     depth_scale: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     """Divisor turning integer depth PNG values into scene units (e.g. 1000 for millimetres);
     overrides the file-level ``depth_scale``."""
+    mask: str | None = None
+    """Optional object mask, an image of the same size (object where its grey value is at
+    least half the range, e.g. white on black). A held-out view
+    with a mask is scored on the object only: PSNR over the mask with both images composited
+    on white, the DTU protocol."""
     split: Split = Split.train
     """Whether the frame is a training or a held-out view."""
 
@@ -263,6 +268,11 @@ class CameraFrame(StrictModel):
     def _check_depth(cls, value: str | None) -> str | None:
         return None if value is None else _relative_file(value, "depth")
 
+    @field_validator("mask")
+    @classmethod
+    def _check_mask(cls, value: str | None) -> str | None:
+        return None if value is None else _relative_file(value, "mask")
+
 
 class CamerasFile(StrictModel):
     """Contents of ``cameras.json``: the pose convention, then one frame per image."""
@@ -273,7 +283,16 @@ class CamerasFile(StrictModel):
         "transform": "did you mean 'pose'? (camera_to_world | world_to_camera)",
     }
     ELSEWHERE_FIELDS: ClassVar[dict[str, str]] = {
-        name: "in each frame" for name in ("image", "matrix", "split", "width", "height", "depth")
+        name: "in each frame"
+        for name in (
+            "image",
+            "matrix",
+            "split",
+            "width",
+            "height",
+            "depth",
+            "mask",
+        )
     }
     REQUIRED_HINTS: ClassVar[dict[str, str]] = {
         "convention": CONVENTION_HINT,

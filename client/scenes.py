@@ -16,8 +16,9 @@
 
 The JSON formats need nothing beyond the base install. ``poses_bounds.npy`` / ``.npz`` files,
 images other than PNG/JPEG/WebP, ``downscale`` and lens undistortion (instant-ngp ``k1, k2,
-p1, p2``) need the ``images`` extra (NumPy, Pillow). DTU object masks are not uploaded (the
-upload format has no masks); held-out scores of DTU jobs are therefore over the whole image.
+p1, p2``) need the ``images`` extra (NumPy, Pillow). DTU object masks (``mask/NNN.png``) go up
+with the held-out frames (the frame's ``mask``), so a DTU job's held-out PSNR is the paper's
+object-masked one.
 """
 
 from __future__ import annotations
@@ -84,6 +85,9 @@ class Upload:
     """Image bytes by the file name the frames use."""
     depths: dict[str, bytes] = field(default_factory=dict)
     """Depth maps by file name (optional)."""
+    masks: dict[str, bytes] = field(default_factory=dict)
+    """Object masks by file name (optional; a held-out frame with one is scored on the
+    object only)."""
     preset: str | None = None
     """Training preset for the source format (None: the server decides)."""
     source: str = "images"
@@ -163,6 +167,11 @@ class Upload:
         missing = sorted(set(names) - set(self.images))
         if missing:
             raise InvalidInput(f"{self.source}: no image for frame(s) {', '.join(missing[:5])}")
+        for kind, files in (("depth", self.depths), ("mask", self.masks)):
+            named = [posixpath.basename(f[kind]) for f in self.cameras["frames"] if f.get(kind)]
+            absent = sorted(set(named) - set(files))
+            if absent:
+                raise InvalidInput(f"{self.source}: no {kind} file {', '.join(absent[:5])}")
         return self
 
 
@@ -336,6 +345,7 @@ def _read_folder(root: Path, views: int | None, test_views: TestViews) -> Upload
     chosen = train + _pick_tests(tests, test_views)
     images: dict[str, bytes] = {}
     depths: dict[str, bytes] = {}
+    masks: dict[str, bytes] = {}
     out_frames = []
     for i in chosen:
         frame = frames[i]
@@ -349,10 +359,16 @@ def _read_folder(root: Path, views: int | None, test_views: TestViews) -> Upload
             depth_name = posixpath.basename(frame.depth)
             depths[depth_name] = _read(root / frame.depth)
             entry["depth"] = depth_name
+        if frame.mask:
+            mask_name = posixpath.basename(frame.mask)
+            masks[mask_name] = _read(root / frame.mask)
+            entry["mask"] = mask_name
         out_frames.append(entry)
     document = cameras.model_dump(mode="json", exclude_none=True)
     document["frames"] = out_frames
-    return Upload(document, images, depths, train_indices=train, test_indices=chosen[len(train) :])
+    return Upload(
+        document, images, depths, masks, train_indices=train, test_indices=chosen[len(train) :]
+    )
 
 
 def _list_images(folder: Path) -> list[Path]:
@@ -571,6 +587,7 @@ def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
     train, test = dtu_split(len(files), views or PAPER_VIEWS["dtu"], str(root))
     chosen = train + _pick_tests(test, test_views)
     images: dict[str, bytes] = {}
+    masks: dict[str, bytes] = {}
     frames = []
     for n, i in enumerate(chosen):
         keys = (f"world_mat_{i}", f"scale_mat_{i}")
@@ -591,8 +608,23 @@ def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
         split = "train" if n < len(train) else "test"
         intr = (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
         frames.append(_frame(name, w2c.tolist(), intr, (width, height), split))
+        mask = _dtu_mask(root, i, files[i]) if split == "test" else None
+        if mask is not None:  # held-out frames are scored on the object, as in the paper
+            masks[f"mask_{name}"], frames[-1]["mask"] = _read(mask), f"mask_{name}"
     document = {"convention": "opencv", "pose": "world_to_camera", "frames": frames}
-    return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
+    return Upload(
+        document, images, masks=masks, train_indices=train, test_indices=chosen[len(train) :]
+    )
+
+
+def _dtu_mask(root: Path, index: int, image: Path) -> Path | None:
+    """The object mask of DTU camera ``index`` (``mask/NNN.png`` as NeuS names it, or the
+    image's own name), or None when the folder has none."""
+    for folder in ("mask", "masks"):
+        for name in (f"{index:03d}.png", image.name):
+            if (root / folder / name).is_file():
+                return root / folder / name
+    return None
 
 
 def _downscale(upload: Upload, factor: int) -> None:
@@ -606,6 +638,9 @@ def _downscale(upload: Upload, factor: int) -> None:
         new_name = posixpath.splitext(name)[0] + ".png"
         if new_name != name:
             upload.images[new_name] = upload.images.pop(name)
+        mask = frame.get("mask")
+        if mask is not None:  # shrunk like the image; the loader thresholds it at half
+            upload.masks[mask] = media.resize(upload.masks[mask], new_w, new_h)
         frame.update(
             image=new_name,
             width=new_w,

@@ -336,6 +336,8 @@ class _Base:
             files.append(("images", (name, data, media.UPLOAD_FORMATS[kind])))
         for name, data in upload.depths.items():
             files.append(("depths", (name, data, "application/octet-stream")))
+        for name, data in upload.masks.items():
+            files.append(("masks", (name, data, media.UPLOAD_FORMATS[media.sniff(data) or "png"])))
         key = uuid.uuid4().hex if idempotency_key == "auto" else idempotency_key
         return _Call(
             "POST",

@@ -7,6 +7,8 @@ The multipart form of ``POST /v1/jobs`` carries:
   include folders, e.g. ``images/r_0.png``; the upload's file name is its last part);
 - ``depths``: optional depth maps named by the frames' ``depth`` entries (``.npy`` float or
   16-bit ``.png``);
+- ``masks``: optional object masks named by the frames' ``mask`` entries (PNG, JPEG or WebP,
+  the size of their image);
 - ``spec``: optional JSON :class:`~sparsesplat.api.jobs.JobSpec`.
 
 Everything is checked before anything is kept: formats from the file headers, image size from
@@ -36,7 +38,7 @@ from sparsesplat.server.errors import ServiceError, invalid
 
 IMAGE_FORMATS = {"PNG": "png", "JPEG": "jpg", "WEBP": "webp"}
 """Accepted image formats (as Pillow names them) and the extension they are stored with."""
-_FORM_FIELDS = {"cameras", "images", "depths", "spec"}
+_FORM_FIELDS = {"cameras", "images", "depths", "masks", "spec"}
 
 
 @dataclass
@@ -44,7 +46,7 @@ class Upload:
     """A validated upload waiting in its staging folder."""
 
     staging: Path
-    """Folder holding cameras.json, images/ and depth/ under our names."""
+    """Folder holding cameras.json, images/, depth/ and masks/ under our names."""
     spec: JobSpec
     """The job spec."""
     n_train_views: int
@@ -183,6 +185,17 @@ def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
     return "png"
 
 
+def _mask_info(data: bytes, name: str, width: int, height: int, settings: Settings) -> str:
+    """Stored extension of an object mask after checking it is an image of its image's size."""
+    ext, mask_width, mask_height = _image_info(data, name, settings)
+    if (mask_width, mask_height) != (width, height):
+        raise invalid(
+            "invalid_mask",
+            f"{name}: mask is {mask_width}x{mask_height}, its image {width}x{height}",
+        )
+    return ext
+
+
 def _files(form: FormData, field: str) -> dict[str, bytes]:
     out: dict[str, bytes] = {}
     for item in form.getlist(field):
@@ -209,6 +222,7 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
     cameras = parse_cameras(form)
     images = _files(form, "images")
     depths = _files(form, "depths")
+    masks = _files(form, "masks")
     if len(cameras.frames) > settings.max_images:
         raise ServiceError(
             413,
@@ -258,6 +272,16 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
             (staging / "depth").mkdir(exist_ok=True)
             entry["depth"] = f"depth/{index:03d}.{depth_ext}"
             (staging / entry["depth"]).write_bytes(depths[depth_name])
+        if frame.mask:
+            mask_name = posixpath.basename(frame.mask)
+            if mask_name not in masks:
+                raise invalid(
+                    "missing_mask", f"{name}: its mask file {mask_name!r} was not uploaded"
+                )
+            mask_ext = _mask_info(masks[mask_name], mask_name, width, height, settings)
+            (staging / "masks").mkdir(exist_ok=True)
+            entry["mask"] = f"masks/{index:03d}.{mask_ext}"
+            (staging / entry["mask"]).write_bytes(masks[mask_name])
         frames.append(entry)
     document = cameras.model_dump(mode="json", exclude_none=True)
     document["frames"] = frames

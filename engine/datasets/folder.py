@@ -95,7 +95,8 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     """Load an upload folder. Frames marked ``split: test`` are held out; of the training
     frames, ``views`` (default all) are taken evenly in file order. User depth maps are
     attached to their views as ``View.depth`` (divided by the optional ``depth_scale``, per
-    frame or top level, e.g. 1000 for millimetre PNGs).
+    frame or top level, e.g. 1000 for millimetre PNGs), object masks as ``View.mask`` (a
+    held-out view with one is scored on the object, the DTU protocol).
 
     Images with an alpha channel are composited on white (the scene background), without
     alpha the background is black; the trainer re-composites on its configured background."""
@@ -127,6 +128,7 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             cameras[i],
             background,
             downscale,
+            mask_path=root / frame.mask if frame.mask else None,
             depth=depth,
             depth_source=depth_path,
         )

@@ -48,6 +48,11 @@ UPLOAD_SCHEMA = {
                             "items": {"type": "string", "format": "binary"},
                             "description": "optional depth maps named by the frames",
                         },
+                        "masks": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "optional object masks named by the frames",
+                        },
                         "spec": {"type": "string", "description": "JobSpec as JSON"},
                     },
                 }
@@ -74,7 +79,7 @@ async def submit_job(
     idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
 ) -> Job:
     """Multipart upload: ``cameras`` (cameras.json), ``images`` (one per frame), optional
-    ``depths`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried submission
+    ``depths``, ``masks`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried submission
     returns the first job (200) instead of creating a second one."""
     settings = service.settings
     if idempotency_key is not None:

@@ -178,3 +178,23 @@ def test_interpolation_slerps_rotation() -> None:
     fa, fm = _centre_and_forward(a)[1], mid[:3, 2]
     assert math.isclose(math.degrees(math.acos(float(fa @ fm))), 45.0, rel_tol=1e-6)
     np.testing.assert_allclose(mid[:3, 3], (2, 2, 0), atol=1e-9)  # centre: linear
+
+
+@pytest.mark.shared_data
+def test_dtu_held_out_frames_carry_the_object_masks_the_engine_scores_with() -> None:
+    from sparsesplat.engine.datasets import load_scene
+
+    upload = read_scene(SCENES["dtu"], test_views="all").validate()
+    scene = load_scene(SCENES["dtu"])
+    frames = upload.cameras["frames"]
+    assert [f.get("mask") for f in frames if f["split"] == "train"] == [None] * 3
+    held_out = [f for f in frames if f["split"] == "test"]
+    assert len(held_out) == len(scene.test) == 25 and len(upload.masks) == 25
+    for frame, view in zip(held_out, scene.test, strict=True):
+        mask = media.decode_array(upload.masks[frame["mask"]])
+        grey = mask if mask.ndim == 2 else mask[..., 0]
+        assert view.mask is not None
+        np.testing.assert_array_equal(grey >= 128, view.mask.numpy())
+    small = read_scene(SCENES["dtu"], test_views=1, downscale=4)
+    [frame] = [f for f in small.cameras["frames"] if f["split"] == "test"]
+    assert media.image_size(small.masks[frame["mask"]]) == (frame["width"], frame["height"])

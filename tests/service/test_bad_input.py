@@ -72,12 +72,18 @@ def _cameras(n: int = 3, **top: Any) -> dict[str, Any]:
     return doc
 
 
-def _parts(cameras: Any, images: dict[str, bytes] | None = None, spec: Any = None) -> list:
+def _parts(
+    cameras: Any,
+    images: dict[str, bytes] | None = None,
+    spec: Any = None,
+    masks: dict[str, bytes] | None = None,
+) -> list:
     text = cameras if isinstance(cameras, str) else json.dumps(cameras)
     parts: list = [("cameras", ("cameras.json", text.encode(), "application/json"))]
     if images is None:
         images = {f"v{i}.png": _png(seed=i) for i in range(3)}
     parts += [("images", (name, data, "image/png")) for name, data in images.items()]
+    parts += [("masks", (name, data, "image/png")) for name, data in (masks or {}).items()]
     if spec is not None:
         parts.append(("spec", (None, spec if isinstance(spec, str) else json.dumps(spec))))
     return parts
@@ -109,7 +115,40 @@ def test_a_valid_upload_is_accepted_and_stored_under_our_names(client: TestClien
     assert all((upload / f["image"]).is_file() for f in stored["frames"])
 
 
+def _mask_png(width: int = SIZE, height: int = SIZE) -> bytes:
+    mask = np.zeros((height, width), np.uint8)
+    mask[height // 4 : 3 * height // 4, width // 4 : 3 * width // 4] = 255
+    buffer = io.BytesIO()
+    Image.fromarray(mask).save(buffer, "PNG")
+    return buffer.getvalue()
+
+
+def test_an_object_mask_is_stored_with_its_frame(client: TestClient) -> None:
+    cameras = _cameras(4)
+    cameras["frames"][3].update(split="test", mask="masks/held_out.png")
+    images = {f"v{i}.png": _png(seed=i) for i in range(4)}
+    response = client.post(
+        "/v1/jobs", files=_parts(cameras, images, masks={"held_out.png": _mask_png()})
+    )
+    assert response.status_code == 201, response.text
+    upload = client.data_dir / "jobs" / response.json()["id"] / "upload"  # type: ignore[attr-defined]
+    stored = json.loads((upload / "cameras.json").read_text())
+    assert [f.get("mask") for f in stored["frames"]] == [None, None, None, "masks/003.png"]
+    assert (upload / "masks" / "003.png").read_bytes() == _mask_png()
+
+
 BAD_CASES: dict[str, tuple[Any, int, str]] = {
+    "mask not uploaded": (lambda: _parts(_with_first(mask="m.png")), 422, "'m.png' was not"),
+    "mask of another size": (
+        lambda: _parts(_with_first(mask="m.png"), masks={"m.png": _mask_png(SIZE, SIZE // 2)}),
+        422,
+        "m.png: mask is 32x16, its image 32x32",
+    ),
+    "mask not an image": (
+        lambda: _parts(_with_first(mask="m.png"), masks={"m.png": b"plain text"}),
+        422,
+        "m.png",
+    ),
     "malformed JSON": (lambda: _parts('{"frames": ['), 422, "not valid JSON"),
     "unknown field": (lambda: _parts({**_cameras(), "convension": "opengl"}), 422, "convention"),
     "missing convention": (

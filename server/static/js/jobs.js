@@ -328,7 +328,9 @@ function jobForm() {
     const missing = frames.filter((f, i) => !matched[i]).map((f) => f.image);
     const depths = frames.map((f) => (typeof f.depth === "string" ? findFile(files, f.depth) : null));
     const missingDepth = frames.filter((f, i) => typeof f.depth === "string" && !depths[i]).map((f) => f.depth);
-    const used = new Set([...matched, ...depths].filter(Boolean));
+    const masks = frames.map((f) => (typeof f.mask === "string" ? findFile(files, f.mask) : null));
+    const missingMask = frames.filter((f, i) => typeof f.mask === "string" && !masks[i]).map((f) => f.mask);
+    const used = new Set([...matched, ...depths, ...masks].filter(Boolean));
     const unused = images.filter((f) => !used.has(f));
     const nTest = frames.filter((f) => f.split === "test").length;
     const bytes = [camerasFile, ...used].reduce((s, f) => s + f.size, 0);
@@ -341,10 +343,11 @@ function jobForm() {
       ),
       missing.length ? el("p.error-text", {}, `Missing image(s): ${missing.slice(0, 8).join(", ")}${missing.length > 8 ? "…" : ""}`) : null,
       missingDepth.length ? el("p.error-text", {}, `Missing depth map(s): ${missingDepth.slice(0, 8).join(", ")}`) : null,
+      missingMask.length ? el("p.error-text", {}, `Missing mask(s): ${missingMask.slice(0, 8).join(", ")}`) : null,
       unused.length ? el("p.muted", {}, `Not in cameras.json (left out): ${unused.slice(0, 8).map((f) => f.name).join(", ")}${unused.length > 8 ? "…" : ""}`) : null,
     );
-    if (missing.length || missingDepth.length) return;
-    plan = { camerasFile, cameras, frames, matched, depths };
+    if (missing.length || missingDepth.length || missingMask.length) return;
+    plan = { camerasFile, cameras, frames, matched, depths, masks };
     submit.disabled = false;
   }
 
@@ -368,6 +371,7 @@ function jobForm() {
     form.append("cameras", plan.camerasFile, "cameras.json");
     plan.matched.forEach((f) => form.append("images", f, f.name));
     plan.depths.forEach((f) => f && form.append("depths", f, f.name));
+    plan.masks.forEach((f) => f && form.append("masks", f, f.name));
     form.append("spec", JSON.stringify(spec()));
     submit.disabled = true;
     sent.hidden = false;

@@ -155,3 +155,24 @@ def test_exif_rotation_is_applied(tmp_path: Path) -> None:
     arr = read_rgb(tmp_path / "r.jpg")
     assert arr.shape == (40, 20, 3)
     assert arr[2, 10, 2] > 0.8 and arr[-2, 10, 0] > 0.8, "left strip must end up on top"
+
+
+def test_object_mask_of_a_held_out_frame(tmp_path: Path) -> None:
+    """A frame's ``mask`` becomes ``View.mask`` (white = object), shrunk with the image;
+    the held-out scores then follow the DTU protocol (tests/engine/metrics)."""
+    from PIL import Image
+
+    root = write_folder_scene(tmp_path / "s", count=4)
+    mask = np.zeros((32, 48), np.uint8)
+    mask[8:24, 12:36] = 255
+    Image.fromarray(mask).save(root / "held_out_mask.png")
+    _edit(root, lambda meta: meta["frames"][3].update(mask="held_out_mask.png"))
+    scene = load_scene(root)
+    assert scene.train[0].mask is None
+    held_out = scene.test[0].mask
+    assert held_out is not None and torch.equal(held_out, torch.from_numpy(mask == 255))
+    half = load_scene(root, downscale=2).test[0].mask
+    assert half is not None and torch.equal(half, torch.from_numpy(mask[::2, ::2] == 255))
+    (root / "held_out_mask.png").unlink()
+    with pytest.raises(SceneError, match=r"held_out_mask\.png"):
+        load_scene(root)
