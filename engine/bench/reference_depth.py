@@ -22,13 +22,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sparsesplat.engine.bench.common import machine_info, results_dir, write_results
+from sparsesplat.engine.bench.common import (
+    format_table,
+    machine_info,
+    results_dir,
+    write_results,
+)
 from sparsesplat.engine.bench.quality import (
     PRESET_OF_FORMAT,
     default_data_root,
@@ -184,8 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows: list[dict[str, Any]] = []
     for path in scenes:
         print(f"[run] {path.name} ({args.iterations} iterations on every view)", flush=True)
-        rows += measure_scene(path, out_dir, args.iterations, args.prior, args.seed)
-        sys.stdout.flush()
+        scene_rows = measure_scene(path, out_dir, args.iterations, args.prior, args.seed)
+        print(format_table(scene_rows, COLUMNS), flush=True)  # a long sweep shows as it goes
+        rows += scene_rows
     write_results(args.name, rows, COLUMNS)
     print(json.dumps({"depth_dir": str(out_dir), "machine": machine_info()["cpu"]}))
     return 0
