@@ -15,6 +15,13 @@ Training the sparse-view preset against it (``make bench-quality BENCH_ARGS="--v
 prior:user --depth-dir OUT ..."``) answers whether the method's depth passes pay when the
 prior agrees with the scene — i.e. whether a loss against the no-depth baseline is the prior's
 doing or the method's.
+
+``--score RUN_DIR ...`` then measures the geometry each trained sparse-view model learned: for
+every bench-quality run folder (``RUNS/<scene>/<variant>_seed<N>`` with its ``checkpoint.pt``)
+it renders depth at the scene's held-out views and compares it with the all-view model's depth
+there (both models live in the same world frame, so depths compare in scene units): the median
+relative depth error and the Spearman rank correlation over the pixels both models cover (DTU:
+inside the object mask). A depth pass that works moves these towards the reference.
 """
 
 from __future__ import annotations
@@ -159,6 +166,64 @@ def measure_scene(
     return rows
 
 
+SCORE_COLUMNS = ["scene", "run", "abs_rel", "rho", "covered", "psnr"]
+
+
+def held_out_geometry(model: Any, reference: Any, views: Sequence[Any]) -> dict[str, float]:
+    """Depth of ``model`` against ``reference`` (both render ``camera``s) at ``views``: the
+    median of |d / d_ref - 1| and the Spearman rho over all pixels both cover (alpha above
+    :data:`COVERED_ALPHA`; inside ``view.mask`` when the view has one), and the share of the
+    reference's covered pixels ``model`` covers too."""
+    import torch
+
+    from sparsesplat.engine.priors.compare import spearman
+
+    ours, theirs, both, covered_ref = [], [], 0, 0
+    for view in views:
+        rendered = []
+        for net in (model, reference):
+            out = net.render(view.camera)
+            alpha = out.alpha[0].double()
+            rendered.append((out.depth[0].double() / alpha.clamp_min(1e-6), alpha > COVERED_ALPHA))
+        (depth, covered), (depth_ref, covered_by_ref) = rendered
+        if view.mask is not None:
+            covered_by_ref &= view.mask.bool()
+        used = covered & covered_by_ref & (depth_ref > 0)
+        covered_ref += int(covered_by_ref.sum())
+        both += int(used.sum())
+        ours.append(depth[used])
+        theirs.append(depth_ref[used])
+    d, d_ref = torch.cat(ours), torch.cat(theirs)
+    if not d.numel():
+        return {"abs_rel": float("nan"), "rho": float("nan"), "covered": 0.0}
+    return {
+        "abs_rel": float((d / d_ref - 1).abs().median()),
+        "rho": spearman(d, d_ref),
+        "covered": both / max(covered_ref, 1),
+    }
+
+
+def score_runs(run_dirs: Sequence[Path], reference_dir: Path) -> list[dict[str, Any]]:
+    """One row per bench-quality run folder: its held-out geometry against the reference
+    model of its scene (``reference_dir/<scene>/run``, written by this benchmark)."""
+    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.train.checkpoint import load_model
+
+    rows, scenes, references = [], {}, {}
+    for run in run_dirs:
+        name = run.parent.name
+        metrics = json.loads((run / "metrics.json").read_text())
+        if name not in scenes:
+            [path] = [p for p in find_scenes([default_data_root()]) if p.name == name]
+            scenes[name] = load_scene(path)
+            references[name] = load_model(reference_dir / name / "run")
+        row: dict[str, Any] = {"scene": name, "run": run.name, "psnr": metrics.get("psnr")}
+        row.update(held_out_geometry(load_model(run), references[name], scenes[name].test))
+        rows.append(row)
+        print(format_table([row], SCORE_COLUMNS), flush=True)
+    return rows
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m sparsesplat.engine.bench.reference_depth``."""
     parser = argparse.ArgumentParser(
@@ -174,6 +239,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--out-dir", type=Path, default=None, help="depth maps (default bench-results/ref-depth)"
     )
     parser.add_argument("--name", default="reference-depth", help="results name (JSON file)")
+    parser.add_argument(
+        "--score",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="instead of training: score these bench-quality run folders' held-out depth "
+        "against the reference models in --out-dir",
+    )
     args = parser.parse_args(argv)
     import torch
 
@@ -181,6 +255,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     use_shared_models()
     out_dir = args.out_dir or results_dir() / "reference-depth"
+    if args.score:
+        write_results(args.name, score_runs(args.score, out_dir), SCORE_COLUMNS)
+        return 0
     scenes = find_scenes(list(args.paths) or [default_data_root()])
     wanted = {s for s in args.scenes.split(",") if s}
     if wanted:

@@ -67,3 +67,35 @@ def test_all_view_scene_trains_on_every_protocol_view(shared_data: Path) -> None
     assert len(set(dense.train_indices)) == len(dense.train_indices)
     assert set(sparse.train_indices) | set(sparse.test_indices) <= set(dense.train_indices)
     assert dense.test_indices == sparse.test_indices
+
+
+def _fake_model(depth: torch.Tensor, alpha: torch.Tensor) -> SimpleNamespace:
+    render = SimpleNamespace(depth=(depth * alpha)[None].float(), alpha=alpha[None].float())
+    return SimpleNamespace(render=lambda camera: render)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_held_out_geometry_against_the_reference(seed: int) -> None:
+    """A model 10 % too far everywhere has relative error 0.1 and rank correlation 1; pixels
+    one model leaves empty or outside the mask are not scored; covered counts the share."""
+    from sparsesplat.engine.bench.reference_depth import held_out_geometry
+
+    gen = torch.Generator().manual_seed(seed)
+    depth = 1.0 + 4.0 * torch.rand(20, 30, generator=gen, dtype=torch.float64)
+    full = torch.ones(20, 30, dtype=torch.float64)
+    holes = full.clone()
+    holes[:5] = 0.0  # a quarter of the rows empty in the model
+    reference = _fake_model(depth, full)
+    view = SimpleNamespace(camera=None, mask=None)
+    same = held_out_geometry(_fake_model(depth, full), reference, [view])
+    assert same["abs_rel"] <= 1e-6 and same["rho"] == pytest.approx(1.0) and same["covered"] == 1
+    far = held_out_geometry(_fake_model(depth * 1.1, holes), reference, [view])
+    # float32 depth*alpha and alpha: relative error below 1e-6 on 1.1
+    assert far["abs_rel"] == pytest.approx(0.1, abs=2e-6)
+    assert far["rho"] == pytest.approx(1.0) and far["covered"] == pytest.approx(0.75)
+    mask = torch.zeros(20, 30, dtype=torch.bool)
+    mask[:10] = True  # half the reference's pixels, of which the model covers half
+    masked = held_out_geometry(
+        _fake_model(depth, holes), reference, [SimpleNamespace(camera=None, mask=mask)]
+    )
+    assert masked["covered"] == pytest.approx(0.5)
