@@ -5,10 +5,10 @@ With three views nothing in a scene says what its true depth is, so the question
 bundled prior agree with the scene?" needs a reference. This benchmark builds one per scene:
 it trains the scene's preset without depth (random init) on *all* its posed views (every
 training candidate and every held-out view; DTU: the 9 + 25 views of the protocol, Blender:
-the 9 + 25), renders that model's depth (alpha-normalised) at the three sparse training views, and writes it to
-``OUT/<scene>/<view>.npy``. Then, per training view, it reports the Spearman rank correlation
-of the bundled prior (and of the plane sweep) with that reference depth, on the pixels the
-reference model covers (alpha > 0.5).
+the 9 + 25), renders that model's depth (alpha-normalised) at the three sparse training
+views, and writes it to ``OUT/<scene>/<view>.npy``. Then, per training view, it reports the
+Spearman rank correlation of the bundled prior (and of the plane sweep) with that reference
+depth, on the pixels the reference model covers (alpha > 0.5).
 
 The reference is a diagnostic, not a prior a user could have: it has seen the held-out views.
 Training the sparse-view preset against it (``make bench-quality BENCH_ARGS="--variants
