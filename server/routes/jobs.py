@@ -79,8 +79,8 @@ async def submit_job(
     idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
 ) -> Job:
     """Multipart upload: ``cameras`` (cameras.json), ``images`` (one per frame), optional
-    ``depths``, ``masks`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried submission
-    returns the first job (200) instead of creating a second one."""
+    ``depths``, ``masks`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried
+    submission returns the first job (200) instead of creating a second one."""
     settings = service.settings
     if idempotency_key is not None:
         existing = await asyncio.to_thread(
