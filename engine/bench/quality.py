@@ -122,6 +122,14 @@ def find_scenes(roots: Sequence[Path], max_depth: int = 3) -> list[Path]:
     return sorted(dict.fromkeys(found))
 
 
+def select_scenes(roots: Sequence[Path], names: str = "") -> list[Path]:
+    """The scene folders under ``roots`` (:func:`find_scenes`), only those named in the comma
+    list ``names`` when it is not empty (the benches' ``--scenes``)."""
+    scenes = find_scenes(roots)
+    wanted = {s for s in names.split(",") if s}
+    return [p for p in scenes if p.name in wanted] if wanted else scenes
+
+
 def variant_overrides(variant: str) -> dict[str, Any]:
     """The TrainConfig overrides that turn a preset into ``variant``."""
     if variant == "full":
@@ -393,10 +401,7 @@ def run(args: argparse.Namespace) -> int:
         return merge(args.merge, out)
     runs_dir = args.runs_dir or out.parent / "quality-runs"
     roots = list(args.paths) or [default_data_root()]
-    scenes = find_scenes(roots)
-    wanted = {s for s in args.scenes.split(",") if s}
-    if wanted:
-        scenes = [p for p in scenes if p.name in wanted]
+    scenes = select_scenes(roots, args.scenes)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]

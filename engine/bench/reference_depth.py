@@ -43,7 +43,7 @@ from sparsesplat.engine.bench.common import (
 from sparsesplat.engine.bench.quality import (
     PRESET_OF_FORMAT,
     default_data_root,
-    find_scenes,
+    select_scenes,
     use_shared_models,
 )
 
@@ -96,6 +96,13 @@ def all_view_scene(path: Path) -> tuple[Any, Any]:
     return sparse, dense
 
 
+def covered_depth(render: Any) -> tuple[Any, Any]:
+    """(float64 alpha-normalised depth, covered mask) of one render: the rasterizer blends
+    depth without dividing by alpha; pixels with alpha above :data:`COVERED_ALPHA` count."""
+    alpha = render.alpha[0].double()
+    return render.depth[0].double() / alpha.clamp_min(1e-6), alpha > COVERED_ALPHA
+
+
 def reference_depths(trainer: Any, views: Sequence[Any]) -> list[tuple[Any, Any]]:
     """(depth, covered) per view from ``trainer``'s model: the alpha-normalised rendered depth
     where alpha > :data:`COVERED_ALPHA`, elsewhere the farthest covered depth (a prior must be
@@ -104,10 +111,7 @@ def reference_depths(trainer: Any, views: Sequence[Any]) -> list[tuple[Any, Any]
 
     out = []
     for view in views:
-        render = trainer.render(view.camera)
-        alpha = render.alpha[0].double()
-        covered = alpha > COVERED_ALPHA
-        depth = render.depth[0].double() / alpha.clamp_min(1e-6)
+        depth, covered = covered_depth(trainer.render(view.camera))
         far = float(depth[covered].max()) if bool(covered.any()) else 1.0
         depth = torch.where(covered, depth, torch.full_like(depth, far)).float()
         out.append((depth, covered))
@@ -180,12 +184,8 @@ def held_out_geometry(model: Any, reference: Any, views: Sequence[Any]) -> dict[
 
     ours, theirs, both, covered_ref = [], [], 0, 0
     for view in views:
-        rendered = []
-        for net in (model, reference):
-            out = net.render(view.camera)
-            alpha = out.alpha[0].double()
-            rendered.append((out.depth[0].double() / alpha.clamp_min(1e-6), alpha > COVERED_ALPHA))
-        (depth, covered), (depth_ref, covered_by_ref) = rendered
+        depth, covered = covered_depth(model.render(view.camera))
+        depth_ref, covered_by_ref = covered_depth(reference.render(view.camera))
         if view.mask is not None:
             covered_by_ref &= view.mask.bool()
         used = covered & covered_by_ref & (depth_ref > 0)
@@ -214,7 +214,7 @@ def score_runs(run_dirs: Sequence[Path], reference_dir: Path) -> list[dict[str, 
         name = run.parent.name
         metrics = json.loads((run / "metrics.json").read_text())
         if name not in scenes:
-            [path] = [p for p in find_scenes([default_data_root()]) if p.name == name]
+            [path] = select_scenes([default_data_root()], name)
             scenes[name] = load_scene(path)
             references[name] = load_model(reference_dir / name / "run")
         row: dict[str, Any] = {"scene": name, "run": run.name, "psnr": metrics.get("psnr")}
@@ -236,7 +236,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="trainer seed of the all-view model")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument(
-        "--out-dir", type=Path, default=None, help="depth maps (default bench-results/ref-depth)"
+        "--out-dir",
+        type=Path,
+        default=None,
+        help="depth maps (default bench-results/reference-depth)",
     )
     parser.add_argument("--name", default="reference-depth", help="results name (JSON file)")
     parser.add_argument(
@@ -258,10 +261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.score:
         write_results(args.name, score_runs(args.score, out_dir), SCORE_COLUMNS)
         return 0
-    scenes = find_scenes(list(args.paths) or [default_data_root()])
-    wanted = {s for s in args.scenes.split(",") if s}
-    if wanted:
-        scenes = [p for p in scenes if p.name in wanted]
+    scenes = select_scenes(list(args.paths) or [default_data_root()], args.scenes)
     rows: list[dict[str, Any]] = []
     for path in scenes:
         print(f"[run] {path.name} ({args.iterations} iterations on every view)", flush=True)
