@@ -68,6 +68,16 @@ def check_rigid_matrix(value: list[list[float]]) -> list[list[float]]:
     return value
 
 
+Vec3 = tuple[float, float, float]
+"""A point or vector in world units (x, y, z)."""
+
+
+def check_bounds(near: float | None, far: float | None, where: str) -> None:
+    """Near/far depth bounds: each optional, but ``near < far`` when both are given."""
+    if near is not None and far is not None and not near < far:
+        raise ValueError(f"{where}: near ({near}) must be less than far ({far})")
+
+
 def _matrix_shape(value: Any) -> Any:
     """Before numeric parsing: a 4x4 nested list, or a ValueError saying what was given."""
     if not isinstance(value, list | tuple):
@@ -213,6 +223,7 @@ class CameraFrame(StrictModel):
     ELSEWHERE_FIELDS: ClassVar[dict[str, str]] = {
         "convention": "at the top level of the file",
         "pose": "at the top level of the file",
+        "init_box": "at the top level of the file",
     }
     REQUIRED_HINTS: ClassVar[dict[str, str]] = {
         "image": "the image file name inside the scene folder",
@@ -247,6 +258,17 @@ class CameraFrame(StrictModel):
     on white, the DTU protocol."""
     split: Split = Split.train
     """Whether the frame is a training or a held-out view."""
+    near: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    """Optional nearest depth of the scene seen by this camera (scene units along its optical
+    axis, e.g. a row of LLFF ``poses_bounds.npy``); with ``far``, it bounds the region the
+    random initialisation fills. Default: the file's ``near``."""
+    far: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    """Optional farthest depth of the scene seen by this camera; default: the file's ``far``."""
+
+    @model_validator(mode="after")
+    def _check_bounds(self) -> CameraFrame:
+        check_bounds(self.near, self.far, f"frame {self.image!r}")
+        return self
 
     @field_validator("matrix", mode="before")
     @classmethod
@@ -308,9 +330,35 @@ class CamerasFile(StrictModel):
     """Divisor turning integer depth PNG values into scene units, for every frame."""
     frames: list[CameraFrame] = Field(min_length=1)
     """The images, in any order."""
+    near: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    """Optional nearest depth of the scene from any camera (scene units). The depth priors
+    sweep from here and the rasterizer culls Gaussians closer than a fifth of it. Default: the
+    frames' own ``near`` when they give one, else the user depth maps, else an estimate from
+    where the cameras' optical axes meet (wide on purpose)."""
+    far: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    """Optional farthest depth of the scene from any camera (scene units); default as ``near``."""
+    init_box: tuple[Vec3, Vec3] | None = None
+    """Optional box the scene lies in: its minimum then its maximum corner, world units (e.g.
+    DTU's unit sphere or NeRF-synthetic's [-1, 1] cube). Random initialisation draws its
+    points here. Default: the space the training cameras see in common between their bounds."""
+
+    @field_validator("init_box")
+    @classmethod
+    def _check_init_box(cls, value: tuple[Vec3, Vec3] | None) -> tuple[Vec3, Vec3] | None:
+        if value is not None:
+            low, high = value
+            if not all(math.isfinite(v) for v in (*low, *high)):
+                raise ValueError("init_box must be finite")
+            if not all(lo < hi for lo, hi in zip(low, high, strict=True)):
+                raise ValueError(
+                    f"init_box: the first corner {list(low)} must be below the second "
+                    f"{list(high)} on every axis"
+                )
+        return value
 
     @model_validator(mode="after")
     def _check_frames(self) -> CamerasFile:
+        check_bounds(self.near, self.far, "the file")
         names = [f.image for f in self.frames]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:

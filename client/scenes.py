@@ -68,6 +68,19 @@ BLENDER_TRAIN_ORDER = (26, 86, 2, 55, 75, 93, 16, 73, 8)
 """Blender: training frame indices of transforms_train.json (DietNeRF/FreeNeRF order)."""
 BLENDER_TEST_STRIDE = 8
 """Blender: every 8th frame of transforms_test.json is held out."""
+BLENDER_BOUNDS: dict[str, Any] = {
+    "near": 2.0,
+    "far": 6.0,
+    "init_box": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
+}
+"""Blender: NeRF-synthetic's depth range and the [-1, 1] cube its objects lie in (the engine's
+Blender loader sets the same)."""
+UNIT_SPHERE_RADIUS = 1.0
+"""DTU: NeuS's scale_mat maps the object into the sphere of this radius around the origin."""
+UNIT_CUBE = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+"""DTU: the box around that sphere, where random initialisation draws its points."""
+DTU_MIN_NEAR = 0.05
+"""DTU: the smallest near bound (a camera inside the sphere would otherwise give near <= 0)."""
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 """Files treated as images when a folder is listed (as the engine lists them)."""
 
@@ -413,7 +426,15 @@ def _read_llff(root: Path, views: int | None, test_views: TestViews) -> Upload:
         images[name] = data
         split = "train" if n < len(train) else "test"
         frames.append(_frame(name, c2w.tolist(), k, (width, height), split))
-    document = {"convention": "opencv", "pose": "camera_to_world", "frames": frames}
+        frames[-1]["near"], frames[-1]["far"] = float(pb[i, 15]), float(pb[i, 16])
+    document = {
+        "convention": "opencv",
+        "pose": "camera_to_world",
+        "frames": frames,
+        # the depth range over every image of the capture, as the engine's LLFF loader takes it
+        "near": float(pb[:, 15].min()),
+        "far": float(pb[:, 16].max()),
+    }
     return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
 
 
@@ -491,7 +512,12 @@ def _read_blender(root: Path, views: int | None, test_views: TestViews) -> Uploa
         k = _intrinsics(meta, frame, width, height, source)
         images[name] = data
         frames.append(_frame(name, frame.get("transform_matrix"), k, (width, height), split))
-    document = {"convention": "opengl", "pose": "camera_to_world", "frames": frames}
+    document = {
+        "convention": "opengl",
+        "pose": "camera_to_world",
+        "frames": frames,
+        **BLENDER_BOUNDS,
+    }
     tests = [i for s, _, i in chosen if s == "test"]
     return Upload(document, images, train_indices=train, test_indices=tests)
 
@@ -589,19 +615,17 @@ def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
     images: dict[str, bytes] = {}
     masks: dict[str, bytes] = {}
     frames = []
+    poses = {i: _neus_camera(cams, i, npz_path) for i in train + test}
+    # The scene's depth range as the engine's DTU loader sets it: the unit sphere NeuS's
+    # scale_mat maps the object into, seen from every camera of the split.
+    dists = [float(np.linalg.norm(_centre_of(w2c))) for _, w2c in poses.values()]
+    bounds = {
+        "near": max(DTU_MIN_NEAR, min(dists) - UNIT_SPHERE_RADIUS),
+        "far": max(dists) + UNIT_SPHERE_RADIUS,
+        "init_box": UNIT_CUBE,
+    }
     for n, i in enumerate(chosen):
-        keys = (f"world_mat_{i}", f"scale_mat_{i}")
-        if any(key not in cams for key in keys):
-            raise InvalidInput(f"{npz_path}: missing {' or '.join(keys)}")
-        p = (np.asarray(cams[keys[0]], np.float64) @ np.asarray(cams[keys[1]], np.float64))[:3]
-        k, rot = _rq(p[:, :3])
-        scale = k[2, 2]
-        k = k / scale
-        if np.linalg.det(rot) < 0:
-            rot, scale = -rot, -scale
-        t = np.linalg.solve(k, p[:, 3] / scale)
-        w2c = np.eye(4)
-        w2c[:3, :3], w2c[:3, 3] = rot, t
+        k, w2c = poses[i]
         data, name = _uploadable(_read(files[i]), files[i].name)
         width, height = media.image_size(data, name)
         images[name] = data
@@ -611,10 +635,34 @@ def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
         mask = _dtu_mask(root, i, files[i]) if split == "test" else None
         if mask is not None:  # held-out frames are scored on the object, as in the paper
             masks[f"mask_{name}"], frames[-1]["mask"] = _read(mask), f"mask_{name}"
-    document = {"convention": "opencv", "pose": "world_to_camera", "frames": frames}
+    document = {"convention": "opencv", "pose": "world_to_camera", "frames": frames, **bounds}
     return Upload(
         document, images, masks=masks, train_indices=train, test_indices=chosen[len(train) :]
     )
+
+
+def _neus_camera(cams: dict[str, Any], index: int, npz_path: Path) -> tuple[Any, Any]:
+    """Intrinsics (3x3) and OpenCV world-to-camera (4x4) of NeuS camera ``index``: its
+    projection ``world_mat @ scale_mat`` split by an RQ decomposition."""
+    np = _numpy("reading DTU cameras_sphere.npz")
+    keys = (f"world_mat_{index}", f"scale_mat_{index}")
+    if any(key not in cams for key in keys):
+        raise InvalidInput(f"{npz_path}: missing {' or '.join(keys)}")
+    p = (np.asarray(cams[keys[0]], np.float64) @ np.asarray(cams[keys[1]], np.float64))[:3]
+    k, rot = _rq(p[:, :3])
+    scale = k[2, 2]
+    k = k / scale
+    if np.linalg.det(rot) < 0:
+        rot, scale = -rot, -scale
+    t = np.linalg.solve(k, p[:, 3] / scale)
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = rot, t
+    return k, w2c
+
+
+def _centre_of(w2c: Any) -> Any:
+    """Camera centre of a world-to-camera matrix."""
+    return -w2c[:3, :3].T @ w2c[:3, 3]
 
 
 def _dtu_mask(root: Path, index: int, image: Path) -> Path | None:

@@ -91,6 +91,43 @@ def _user_depth(root: Path, frame: CameraFrame, meta: CamerasFile) -> tuple[np.n
     return depth / scale, path
 
 
+def _scene_bounds(
+    meta: CamerasFile,
+    frames: list[CameraFrame],
+    train: list[View],
+    train_cams: list[Camera],
+    source: str,
+) -> tuple[float, float]:
+    """The scene's near/far: the file's, else the frames' own (nearest near, farthest far),
+    else the user depth maps' range with a margin, else where the optical axes meet."""
+    near, far = look_at_bounds(train_cams)
+    depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
+    if depths and sum(d.numel() for d in depths) > 0:
+        valid = torch.cat(depths)
+        near, far = float(valid.min()) * 0.8, float(valid.max()) * 1.25
+    frame_near = [f.near for f in frames if f.near is not None]
+    frame_far = [f.far for f in frames if f.far is not None]
+    near = meta.near or (min(frame_near) if frame_near else near)
+    far = meta.far or (max(frame_far) if frame_far else far)
+    if not near < far:
+        raise SceneError(f"{source}: near {near:g} is not below far {far:g}: check near/far")
+    return near, far
+
+
+def _view_bounds(
+    frames: list[CameraFrame], near: float, far: float, source: str
+) -> tuple[list[float], list[float]]:
+    """Each frame's near/far, the scene's where the frame gives none."""
+    nears = [f.near or near for f in frames]
+    fars = [f.far or far for f in frames]
+    for frame, lo, hi in zip(frames, nears, fars, strict=True):
+        if not lo < hi:
+            raise SceneError(
+                f"{source}: frame {frame.image!r}: near {lo:g} is not below far {hi:g}"
+            )
+    return nears, fars
+
+
 def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Scene:
     """Load an upload folder. Frames marked ``split: test`` are held out; of the training
     frames, ``views`` (default all) are taken evenly in file order. User depth maps are
@@ -140,11 +177,8 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
         old, new = torch.tensor(BLACK), torch.tensor(background)
         train = [recomposite(v, old, new) for v in train]
         test = [recomposite(v, old, new) for v in test]
-    near, far = look_at_bounds(train_cams)
-    depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
-    if depths and sum(d.numel() for d in depths) > 0:
-        valid = torch.cat(depths)
-        near, far = float(valid.min()) * 0.8, float(valid.max()) * 1.25
+    near, far = _scene_bounds(meta, [frames[i] for i in all_idx], train, train_cams, str(path))
+    train_near, train_far = _view_bounds([frames[i] for i in train_idx], near, far, str(path))
     alone = check_overlap(train_cams, train_names, near, far, str(path))
     if alone:
         log.warning(
@@ -152,7 +186,7 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             path,
             ", ".join(alone),
         )
-    box = covisible_box(train_cams, [near] * count, [far] * count)
+    box = meta.init_box or covisible_box(train_cams, train_near, train_far)
     return Scene(
         name=root.name,
         format="folder",

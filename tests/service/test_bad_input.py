@@ -137,6 +137,22 @@ def test_an_object_mask_is_stored_with_its_frame(client: TestClient) -> None:
     assert (upload / "masks" / "003.png").read_bytes() == _mask_png()
 
 
+def test_depth_bounds_and_init_box_are_stored_with_the_upload(client: TestClient) -> None:
+    cameras = {**_cameras(), "near": 0.5, "far": 9.0, "init_box": [[-1, -1, -1], [1, 1, 1]]}
+    cameras["frames"][1].update(near=1.0, far=4.0)
+    response = client.post("/v1/jobs", files=_parts(cameras))
+    assert response.status_code == 201, response.text
+    upload = client.data_dir / "jobs" / response.json()["id"] / "upload"  # type: ignore[attr-defined]
+    stored = json.loads((upload / "cameras.json").read_text())
+    assert (stored["near"], stored["far"]) == (0.5, 9.0)
+    assert stored["init_box"] == [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+    assert [(f.get("near"), f.get("far")) for f in stored["frames"]] == [
+        (None, None),
+        (1.0, 4.0),
+        (None, None),
+    ]
+
+
 BAD_CASES: dict[str, tuple[Any, int, str]] = {
     "mask not uploaded": (lambda: _parts(_with_first(mask="m.png")), 422, "'m.png' was not"),
     "mask of another size": (
@@ -155,6 +171,21 @@ BAD_CASES: dict[str, tuple[Any, int, str]] = {
         lambda: _parts({k: v for k, v in _cameras().items() if k != "convention"}),
         422,
         "convention",
+    ),
+    "near beyond far": (
+        lambda: _parts({**_cameras(), "near": 5.0, "far": 2.0}),
+        422,
+        "near (5.0) must be less than far (2.0)",
+    ),
+    "frame bounds reversed": (
+        lambda: _parts(_with_first(near=3.0, far=1.0)),
+        422,
+        "frame 'v0.png': near (3.0) must be less than far (1.0)",
+    ),
+    "init box inside out": (
+        lambda: _parts({**_cameras(), "init_box": [[0, 0, 0], [1, 1, -1]]}),
+        422,
+        "init_box: the first corner",
     ),
     "3x3 matrix": (lambda: _parts(_with_first(matrix=[[1, 0, 0]] * 3)), 422, "4x4"),
     "non-rigid rotation": (

@@ -34,6 +34,32 @@ def test_folder_scene_loads(tmp_path: Path) -> None:
     assert len(load_scene(root, views=2).train) == 2
 
 
+def test_bounds_and_init_box_from_cameras_json(tmp_path: Path) -> None:
+    """Given bounds win over the user depth and the optical-axes estimate; per-frame bounds
+    set the scene's range (nearest near, farthest far) and narrow the init box."""
+    root = write_folder_scene(tmp_path / "s", count=5, depth=True)
+    guessed = load_scene(root)
+    _edit(root, lambda m: m.update(near=1.5, far=4.5, init_box=[[-1, -2, -3], [1, 2, 3]]))
+    given = load_scene(root)
+    assert (given.near, given.far) == (1.5, 4.5)
+    assert given.init_box == ((-1.0, -2.0, -3.0), (1.0, 2.0, 3.0))
+
+    def per_frame(meta: dict) -> None:
+        for key in ("near", "far", "init_box"):
+            meta.pop(key)
+        for i, frame in enumerate(meta["frames"]):
+            frame.update(near=2.8 - 0.05 * i, far=3.2 + 0.05 * i)
+
+    _edit(root, per_frame)
+    framed = load_scene(root)
+    assert framed.near == pytest.approx(2.6) and framed.far == pytest.approx(3.4)
+    assert (guessed.near, guessed.far) == pytest.approx((2.4, 3.75)), "depth 3 with margins"
+    narrow, wide = np.array(framed.init_box), np.array(guessed.init_box)
+    # The cameras stand 3 units from the origin: depths within 0.4 of 3 keep the box within
+    # about 0.5 of the origin along the view direction, smaller than the depth maps' range.
+    assert np.all(narrow[1] - narrow[0] < wide[1] - wide[0])
+
+
 def test_opengl_convention_gives_same_cameras(tmp_path: Path) -> None:
     root = write_folder_scene(tmp_path / "s")
     cv = load_scene(root)
@@ -59,6 +85,16 @@ def test_opengl_convention_gives_same_cameras(tmp_path: Path) -> None:
         (lambda m: [f.update(split="test") for f in m["frames"][1:]], "at least 2"),
         (lambda m: m.update(convention="weird"), "convention"),
         (lambda m: m["frames"][0].update(depth="nodepth.npy"), "nodepth.npy"),
+        (lambda m: m.update(near=2.0, far=1.0), r"near \(2.0\) must be less than far"),
+        (lambda m: m.update(init_box=[[1, 0, 0], [0, 1, 1]]), "init_box: the first corner"),
+        (
+            lambda m: (
+                m.update(far=3.5),
+                m["frames"][0].update(near=4),
+                m["frames"][1].update(near=1),
+            ),
+            "frame 'view_0.png': near 4 is not below far 3.5",
+        ),
     ],
 )
 def test_bad_folder_input_raises_scene_error(tmp_path: Path, breaker, message: str) -> None:  # type: ignore[no-untyped-def]
