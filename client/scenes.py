@@ -710,8 +710,15 @@ def from_images(
     test_images: Sequence[Any] = (),
     test_cameras: Sequence[PinholeCamera] = (),
     names: Sequence[str] | None = None,
+    near: float | None = None,
+    far: float | None = None,
+    init_box: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> Upload:
     """An :class:`Upload` of images with their cameras.
+
+    ``near``/``far`` (the scene's depth range from the cameras) and ``init_box`` (the box the
+    scene lies in: minimum corner, maximum corner) go into ``cameras.json`` when given; the
+    service estimates them from the cameras otherwise (docs/cameras.md).
 
     Each image is a file path (PNG/JPEG/WebP sent as they are), encoded bytes, a NumPy array
     (H, W, 3|4; uint8 or float in [0, 1]) or a PIL image (arrays and PIL images need the
@@ -749,7 +756,13 @@ def from_images(
         frames.append(
             _frame(name, matrix, (cam.fx, cam.fy, cam.cx, cam.cy), (width, height), split)
         )
-    document = {"convention": convention.value, "pose": pose.value, "frames": frames}
+    document: dict[str, Any] = {
+        "convention": convention.value,
+        "pose": pose.value,
+        "frames": frames,
+    }
+    bounds = {"near": near, "far": far, "init_box": init_box}
+    document.update({k: v for k, v in bounds.items() if v is not None})
     return Upload(document, uploaded, source="images").validate()
 
 

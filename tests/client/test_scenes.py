@@ -145,6 +145,19 @@ def test_from_images_accepts_arrays_and_mixed_conventions(tmp_path: Path) -> Non
         from_images([np.zeros((24, 16, 3), np.uint8)] * 3, ring)
 
 
+def test_from_images_carries_bounds_and_refuses_reversed_ones() -> None:
+    k = cameras.Intrinsics.from_fov(24, 16, 60)
+    ring = cameras.orbit((0, 0, 0), 3.0, 3, intrinsics=k, arc_deg=90)
+    images = [np.zeros((16, 24, 3), np.uint8)] * 3
+    box = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+    upload = from_images(images, ring, near=2.0, far=4.0, init_box=box)
+    assert (upload.cameras["near"], upload.cameras["far"]) == (2.0, 4.0)
+    assert upload.cameras["init_box"] == box
+    assert "near" not in from_images(images, ring).cameras
+    with pytest.raises(InvalidInput, match=r"near \(4.0\) must be less than far \(2.0\)"):
+        from_images(images, ring, near=4.0, far=2.0)
+
+
 # ---------------------------------------------------------------- camera helpers
 
 
