@@ -133,7 +133,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     frames, ``views`` (default all) are taken evenly in file order. User depth maps are
     attached to their views as ``View.depth`` (divided by the optional ``depth_scale``, per
     frame or top level, e.g. 1000 for millimetre PNGs), object masks as ``View.mask`` (a
-    held-out view with one is scored on the object, the DTU protocol).
+    held-out view with one is scored on the object, the DTU protocol). The scene's near/far
+    and init box are the file's ``near``/``far``/``init_box`` when it gives them (per-frame
+    bounds shape the box), else estimated (:func:`_scene_bounds`).
 
     Images with an alpha channel are composited on white (the scene background), without
     alpha the background is black; the trainer re-composites on its configured background."""
