@@ -27,6 +27,8 @@ ColorModelName = Literal["neural", "sh"]
 RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
 """The rasterizer backends ``engine.raster.rasterize`` accepts."""
 InitName = Literal["random", "dense"]
+AuxiliaryStepName = Literal["separate", "joint"]
+"""How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
 """Initial Gaussians: a random box, or back-projected confident metric depth."""
 
 
@@ -161,6 +163,13 @@ class TrainConfig:
     """Run the depth passes every n-th iteration (Blender: 10)."""
     depth_until: int | None = None
     """Stop the depth passes at this iteration (Blender: densify_until); None = never."""
+    auxiliary_step: AuxiliaryStepName = "separate"
+    """'separate' (the reference code): the hard-depth, soft-depth and DTU background-alpha
+    passes each take their own step of the run's shared Adam optimizer before the photometric
+    step, so the centres get two Adam steps per iteration (and the hard step carries the
+    photometric momentum). 'joint' (the paper's single objective L = L_color + R_hard +
+    R_soft): their gradients are added to the photometric gradient and the iteration takes
+    one step."""
     soft_depth_ema_gate: float | None = None
     """DTU: take a soft step only while the EMA of the hard loss is below this; None = off."""
     patch_min: int = 5

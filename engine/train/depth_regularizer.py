@@ -1,8 +1,10 @@
 """DNGaussian's depth regulariser (dngaussian-method.md §1.5-§1.6): the hard and soft depth
 passes with Global-Local depth normalization against a monocular prior.
 
-Each pass is its own forward/backward and its own step of the run's shared Adam optimizer
-(``zero_grad(set_to_none=True)`` after, so a pass moves only what it reaches):
+Each pass is its own forward/backward and, as the reference code runs it, its own step of the
+run's shared Adam optimizer (``zero_grad(set_to_none=True)`` after, so a pass moves only what it
+reaches); with ``auxiliary_step='joint'`` the gradients instead join the photometric step (the
+paper's single objective):
 
 1. hard depth: opacity ``hard_opacity`` everywhere, scales/rotations detached → centres move;
 2. soft depth: centres/scales/rotations detached → only opacities move; after
@@ -26,7 +28,12 @@ from sparsesplat.engine.losses import edge_aware_smoothness, global_local_depth_
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.dtu_background import fill_background_depth
 from sparsesplat.engine.train.guard import DivergenceGuard
-from sparsesplat.engine.train.parts import Raster, StageTimer, TrainView
+from sparsesplat.engine.train.parts import (
+    Raster,
+    StageTimer,
+    TrainView,
+    finish_auxiliary_pass,
+)
 
 HARD_EMA_DECAY = 0.9
 """Weight of the previous value in the running mean of the hard-depth loss (the DTU gate)."""
@@ -68,6 +75,9 @@ class DepthSettings:
     """Smoothness applies for iterations > this."""
     empty_background: bool
     """Set the prior to its nearest value on pixels showing the pure background."""
+    joint: bool = False
+    """``auxiliary_step='joint'``: the passes leave their gradients for the photometric step
+    instead of taking their own optimizer steps."""
     fill_background: bool = False
     """DTU: fill the view's background mask (``TrainView.mask``) in rendered and prior depth
     with their foreground means (``dtu_background`` and ``dtu_depth_fill``)."""
@@ -92,6 +102,7 @@ class DepthSettings:
             smooth_weight=cfg.depth_smooth_weight,
             smooth_start=cfg.depth_smooth_start,
             empty_background=cfg.depth_empty_background,
+            joint=cfg.auxiliary_step == "joint",
             fill_background=cfg.dtu_background and cfg.dtu_depth_fill,
         )
 
@@ -169,8 +180,8 @@ class DepthRegularizer:
         guard: DivergenceGuard,
         timer: StageTimer,
     ) -> None:
-        """The iteration's hard and soft passes, each with its own optimizer step, when the
-        schedules say so."""
+        """The iteration's hard and soft passes, each with its own optimizer step (or, joint,
+        its gradients left for the photometric step), when the schedules say so."""
         s, g, it = self.settings, gaussians, iteration
         if it % s.every != 0 or (s.until is not None and it >= s.until):
             return
@@ -187,8 +198,7 @@ class DepthRegularizer:
             loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
             loss.backward()
-            optimizer.step()
-            optimizer.zero_grad(set_to_none=True)
+            finish_auxiliary_pass(optimizer, s.joint)
             hv = float(loss.detach())
             ema = self.hard_ema
             self.hard_ema = hv if ema is None else HARD_EMA_DECAY * ema + 0.1 * hv
@@ -209,8 +219,7 @@ class DepthRegularizer:
             loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the soft-depth loss", iteration)
             loss.backward()
-            optimizer.step()
-            optimizer.zero_grad(set_to_none=True)
+            finish_auxiliary_pass(optimizer, s.joint)
             timer.tick("soft_depth")
 
     def depth_loss(

@@ -49,7 +49,12 @@ from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import SSIMTarget
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.guard import DivergenceGuard
-from sparsesplat.engine.train.parts import Raster, StageTimer, TrainView
+from sparsesplat.engine.train.parts import (
+    Raster,
+    StageTimer,
+    TrainView,
+    finish_auxiliary_pass,
+)
 
 
 @dataclass(frozen=True)
@@ -228,6 +233,9 @@ class DtuPartSettings:
     """Run the background-alpha pass."""
     black_white: bool
     """Apply the black/white rule at each densification."""
+    joint: bool = False
+    """``auxiliary_step='joint'``: the alpha pass leaves its gradient for the photometric step
+    instead of taking its own optimizer step."""
 
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> DtuPartSettings:
@@ -238,6 +246,7 @@ class DtuPartSettings:
             depth_fill=cfg.dtu_depth_fill,
             alpha_loss=cfg.dtu_alpha_loss,
             black_white=cfg.dtu_black_white,
+            joint=cfg.auxiliary_step == "joint",
         )
 
 
@@ -282,8 +291,9 @@ class DtuBackground:
         timer: StageTimer,
     ) -> None:
         """The background-alpha pass (real opacities, geometry detached: moves only opacities)
-        with its own optimizer step; skipped when off or when the view has no background (an
-        empty mask gives no gradient, and an Adam step on zero gradients would still move)."""
+        with its own optimizer step (joint: its gradient left for the photometric step);
+        skipped when off or when the view has no background (an empty mask gives no gradient,
+        and an Adam step on zero gradients would still move)."""
         mask = self.masks[view.index]
         if not self.settings.alpha_loss or not bool(mask.any()):
             return
@@ -300,8 +310,7 @@ class DtuBackground:
         loss = background_alpha_loss(out.alpha, mask)
         guard.check_finite(loss.detach(), "the DTU background-alpha loss", iteration)
         loss.backward()
-        optimizer.step()
-        optimizer.zero_grad(set_to_none=True)
+        finish_auxiliary_pass(optimizer, self.settings.joint)
         timer.tick("dtu_alpha")
 
     def black_white(self, iteration: int, gaussians: Gaussians, colors: Tensor) -> None:

@@ -15,7 +15,8 @@ changes nothing, not even the order of the run's random draws. The loop's order 
     (draw the view)
     dtu.adjust_view                blackened target + background mask (dtu_background)
     depth.step_pre_photometric     hard and soft depth passes, own optimizer steps
-    dtu.step_pre_photometric       background-alpha pass, own optimizer step
+                                   (auxiliary_step='joint': gradients kept for the one step)
+    dtu.step_pre_photometric       background-alpha pass, own optimizer step (likewise)
     dropout.draw                   photometric_inputs: the kept rows (dropout)
     photometric render, loss
     consistency.extra_loss         added to the photometric loss (consistency_weight > 0)
@@ -34,6 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
@@ -81,3 +83,12 @@ class StageTimer:
             now = time.perf_counter()
             self.totals[stage] = self.totals.get(stage, 0.0) + (now - self._last)
             self._last = now
+
+
+def finish_auxiliary_pass(optimizer: torch.optim.Optimizer, joint: bool) -> None:
+    """End an auxiliary pass whose backward has run: its own optimizer step (and cleared
+    gradients) when passes step separately; nothing when ``joint``, so its gradients wait in
+    ``.grad`` and join the photometric step."""
+    if not joint:
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)

@@ -8,6 +8,9 @@ forward/backward passes, each followed by its own step of ONE shared Adam optimi
 2. soft depth (after ``soft_depth_start``): centres/scales/rotations detached → only opacities;
 3. photometric: L1 + λ·D-SSIM + shape/scale/opacity regularizers → everything; densification.
 
+``auxiliary_step='joint'`` instead keeps the depth passes' gradients for the photometric step
+(the paper's single objective, one optimizer step per iteration).
+
 The loop below reads as the method does; each concern is a part with its own settings and
 state (``engine/train/parts.py`` says what a part is):
 
