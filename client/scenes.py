@@ -68,17 +68,12 @@ BLENDER_TRAIN_ORDER = (26, 86, 2, 55, 75, 93, 16, 73, 8)
 """Blender: training frame indices of transforms_train.json (DietNeRF/FreeNeRF order)."""
 BLENDER_TEST_STRIDE = 8
 """Blender: every 8th frame of transforms_test.json is held out."""
-BLENDER_BOUNDS: dict[str, Any] = {
-    "near": 2.0,
-    "far": 6.0,
-    "init_box": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
-}
-"""Blender: NeRF-synthetic's depth range and the [-1, 1] cube its objects lie in (the engine's
-Blender loader sets the same)."""
+UNIT_CUBE = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+"""The [-1, 1] cube DTU's and NeRF-synthetic's objects lie in (the engine's loaders' init box)."""
+BLENDER_BOUNDS: dict[str, Any] = {"near": 2.0, "far": 6.0, "init_box": UNIT_CUBE}
+"""Blender: NeRF-synthetic's depth range and box (the engine's Blender loader sets the same)."""
 UNIT_SPHERE_RADIUS = 1.0
 """DTU: NeuS's scale_mat maps the object into the sphere of this radius around the origin."""
-UNIT_CUBE = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
-"""DTU: the box around that sphere, where random initialisation draws its points."""
 DTU_MIN_NEAR = 0.05
 """DTU: the smallest near bound (a camera inside the sphere would otherwise give near <= 0)."""
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")

@@ -100,15 +100,17 @@ def _scene_bounds(
 ) -> tuple[float, float]:
     """The scene's near/far: the file's, else the frames' own (nearest near, farthest far),
     else the user depth maps' range with a margin, else where the optical axes meet."""
-    near, far = look_at_bounds(train_cams)
-    depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
-    if depths and sum(d.numel() for d in depths) > 0:
-        valid = torch.cat(depths)
-        near, far = float(valid.min()) * 0.8, float(valid.max()) * 1.25
     frame_near = [f.near for f in frames if f.near is not None]
     frame_far = [f.far for f in frames if f.far is not None]
-    near = meta.near or (min(frame_near) if frame_near else near)
-    far = meta.far or (max(frame_far) if frame_far else far)
+    near = meta.near or (min(frame_near) if frame_near else None)
+    far = meta.far or (max(frame_far) if frame_far else None)
+    if near is None or far is None:  # estimate only what was not given
+        guess_near, guess_far = look_at_bounds(train_cams)
+        depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
+        if depths and sum(d.numel() for d in depths) > 0:
+            valid = torch.cat(depths)
+            guess_near, guess_far = float(valid.min()) * 0.8, float(valid.max()) * 1.25
+        near, far = near or guess_near, far or guess_far
     if not near < far:
         raise SceneError(f"{source}: near {near:g} is not below far {far:g}: check near/far")
     return near, far

@@ -27,9 +27,9 @@ ColorModelName = Literal["neural", "sh"]
 RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
 """The rasterizer backends ``engine.raster.rasterize`` accepts."""
 InitName = Literal["random", "dense"]
+"""Initial Gaussians: a random box, or back-projected confident metric depth."""
 AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
-"""Initial Gaussians: a random box, or back-projected confident metric depth."""
 
 
 REFERENCE_ITERATIONS = 6000
