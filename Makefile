@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-service
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service
 
 venv: $(VENV)/.installed
 
@@ -59,6 +59,9 @@ bench-parts: venv
 
 bench-reference-depth: venv
 	$(PY) -m sparsesplat.engine.bench.reference_depth $(BENCH_ARGS)
+
+bench-per-view: venv
+	$(PY) -m sparsesplat.engine.bench.per_view $(BENCH_ARGS)
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)

@@ -228,7 +228,7 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def _load_rows(path: Path) -> list[dict[str, Any]]:
+def load_rows(path: Path) -> list[dict[str, Any]]:
     """Rows of an earlier (possibly partial) results file; [] when absent or unreadable."""
     try:
         return list(json.loads(path.read_text()).get("rows", []))
@@ -368,7 +368,7 @@ def merge(paths: Sequence[Path], out: Path) -> int:
     summary."""
     rows: dict[tuple[Any, ...], dict[str, Any]] = {}
     for path in paths:
-        for row in _load_rows(path):
+        for row in load_rows(path):
             rows[_entry_key(row)] = row
     _save(out, list(rows.values()))
     print(format_table(summarize(list(rows.values())), SUMMARY_COLUMNS))
@@ -411,7 +411,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench-quality: no scenes found under {', '.join(map(str, roots))}")
         return 1
 
-    rows = [] if args.fresh else [r for r in _load_rows(out) if not r.get("error")]
+    rows = [] if args.fresh else [r for r in load_rows(out) if not r.get("error")]
     done = {_entry_key(r) for r in rows}
     priors = _PriorCache()
     failed = 0

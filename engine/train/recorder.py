@@ -169,6 +169,9 @@ class Recorder:
         """The error-vs-time series (ProgressRecord dicts)."""
         self.view_coverage: dict[str, float] = {}
         """Mean alpha of each view's render at the last evaluation (by view name)."""
+        self.view_scores: dict[str, dict[str, float | None]] = {}
+        """PSNR, SSIM and LPIPS of each view at the last evaluation (by view name); the final
+        evaluation scores every held-out view, so a run's weak views can be found."""
         self.eval_keep: Callable[[Tensor, list[Camera]], Tensor] | None = None
         """Rows an evaluation renders, from the means and the cameras rendered (near-plane
         pruning); None renders every row."""
@@ -211,7 +214,9 @@ class Recorder:
                 image = out.image.permute(1, 2, 0)
                 scores.append(self._evaluator.score_view(image, v.image, v.mask, key=v.name))
                 coverage.append(float(out.alpha.mean()))
-        self.view_coverage = dict(zip([v.name for v in views], coverage, strict=True))
+        names = [v.name for v in views]
+        self.view_coverage = dict(zip(names, coverage, strict=True))
+        self.view_scores = dict(zip(names, scores, strict=True))
         return self._evaluator.mean(scores)
 
     def background_psnr(self) -> float | None:
@@ -323,6 +328,11 @@ class Recorder:
                 }
         if self.view_coverage:
             metrics["coverage"] = sum(self.view_coverage.values()) / len(self.view_coverage)
+        if self.scene.test and self.view_scores:
+            metrics["views"] = {
+                name: {**scores, "coverage": self.view_coverage[name]}
+                for name, scores in self.view_scores.items()
+            }
         warning = self.emptiness_warning(metrics.get("psnr"))
         if warning:  # surfaced by the caller (the CLI prints it, the service stores it)
             log.info("%s: %s", self.scene.name, warning)

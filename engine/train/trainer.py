@@ -101,7 +101,8 @@ class TrainResult:
 
     metrics: dict[str, Any]
     """Final held-out metrics (psnr, ssim, lpips, avge; None where unavailable) plus seconds,
-    iterations, n_gaussians and, for neural colour, the SH baking PSNR."""
+    iterations, n_gaussians, coverage, ``views`` (each held-out view's psnr, ssim, lpips and
+    coverage, by name) and, for neural colour, the SH baking PSNR."""
     artifacts: dict[str, Path]
     """Written files by kind: checkpoint, metrics, series_json/csv/png, ply, splat."""
     seconds: float

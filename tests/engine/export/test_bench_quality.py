@@ -136,3 +136,56 @@ def test_iters_variant_compresses_the_reference_schedule_and_wins_over_iteration
     assert quality.variant_config("llff", "full", iterations=1000).iterations == 1000
     with pytest.raises(SystemExit, match="iters:N"):
         quality.variant_config("llff", "iters:many")
+
+
+def test_per_view_angle_is_the_smallest_optical_axis_angle_to_a_training_camera() -> None:
+    import math
+
+    import torch
+
+    from sparsesplat.engine.bench import per_view
+    from sparsesplat.engine.camera import Camera
+
+    def turned(degrees: float) -> Camera:  # a camera yawed about the world y axis
+        a = math.radians(degrees)
+        w2c = torch.eye(4, dtype=torch.float64)
+        w2c[:3, :3] = torch.tensor(
+            [[math.cos(a), 0.0, -math.sin(a)], [0.0, 1.0, 0.0], [math.sin(a), 0.0, math.cos(a)]],
+            dtype=torch.float64,
+        )
+        return Camera(w2c, 10.0, 10.0, 8.0, 6.0, 16, 12)
+
+    def view(name: str, degrees: float) -> SimpleNamespace:
+        return SimpleNamespace(name=name, camera=turned(degrees))
+
+    scene = SimpleNamespace(
+        train=[view("t0", 0.0), view("t1", 40.0)], test=[view("a", 25.0), view("b", -30.0)]
+    )
+    angles = per_view.nearest_training_angles(scene)
+    assert angles == pytest.approx({"a": 15.0, "b": 30.0}, abs=1e-9)
+
+
+def test_per_view_rows_average_each_view_over_seeds(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sparsesplat.engine.bench import per_view
+
+    scene = SimpleNamespace(name="s", train=[], test=[])
+    monkeypatch.setattr(per_view, "nearest_training_angles", lambda s: {"v1": 10.0, "v2": 20.0})
+    for seed, (a, b) in enumerate([(10.0, 20.0), (12.0, 23.0)]):
+        run = tmp_path / f"run{seed}"
+        run.mkdir()
+        views = {"v1": {"psnr": a}, "v2": {"psnr": b}}
+        (run / "metrics.json").write_text(json.dumps({"psnr": (a + b) / 2, "views": views}))
+    results = [
+        {"scene": "s", "variant": "full", "seed": i, "out_dir": str(tmp_path / f"run{i}")}
+        for i in (0, 1)
+    ] + [{"scene": "s", "variant": "no_depth", "error": "boom", "out_dir": "nowhere"}]
+    rows = per_view.per_view_rows(results, scene, ["full"])
+    assert [(r["view"], r["angle_deg"], r["full"]) for r in rows] == [
+        ("v1", 10.0, 11.0),
+        ("v2", 20.0, 21.5),
+    ]
+    assert rows[0]["full_seeds"] == "0,1"
+    with pytest.raises(SystemExit, match="no 'no_depth' run of s"):
+        per_view.per_view_rows(results, scene, ["no_depth"])

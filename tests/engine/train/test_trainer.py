@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import math
 import random
 from pathlib import Path
@@ -244,3 +245,24 @@ def test_interim_evaluation_samples_evenly_spaced_views(seed: int) -> None:
     assert trainer.evaluate(None) != trainer.evaluate(3)
     with pytest.raises(ConfigError, match="eval_max_views"):
         small(eval_max_views=0)
+
+
+def test_metrics_name_each_held_out_view_and_a_checkpoint_rescores_them(
+    tmp_path: Path, seed: int
+) -> None:
+    """``metrics["views"]`` scores every held-out view of the final evaluation (their mean is
+    the run's PSNR), and bench-per-view's re-scoring of the checkpoint agrees with them."""
+    from sparsesplat.engine.bench.per_view import view_psnr_of_run
+
+    scene, priors = make_scene(seed=seed, n_test=3)
+    result = Trainer(scene, small(), priors, tmp_path).run()
+    views = result.metrics["views"]
+    assert list(views) == [v.name for v in scene.test]
+    psnrs = [views[v.name]["psnr"] for v in scene.test]
+    assert result.metrics["psnr"] == pytest.approx(sum(psnrs) / len(psnrs), rel=1e-12)
+    assert all(0.0 < views[n]["coverage"] <= 1.0 for n in views)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())["views"]
+    assert on_disk == views  # JSON keeps every float exactly
+    (tmp_path / "metrics.json").unlink()  # an older run: re-scored from its checkpoint
+    rescored = view_psnr_of_run(tmp_path, scene)
+    assert rescored == pytest.approx(dict(zip(views, psnrs, strict=True)), abs=1e-9)
