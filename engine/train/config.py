@@ -530,14 +530,16 @@ PRESETS: dict[str, dict[str, Any]] = {
     # +0.59 dB on juicebox_table and +0.73 on beer_can, with lower LPIPS on both.
     "llff": {"preset": "llff", "dropout": True},
     # DTU: 3 views at 400x300, neural colour, hard + EMA-gated soft depth, larger patches, the
-    # reference's black-background pieces, and a dense init (not the reference's random box).
-    # 3 seeds at 1500 compressed iterations (docs/trainer.md): dtu_scan24 15.71 ± 0.96 dB and
-    # dtu_scan37 12.65 ± 0.39 dB, against 12.85 ± 0.45 and 10.16 (seed 0) with the random box
-    # and no background handling.
+    # reference's black-background pieces, a dense init (not the reference's random box) and
+    # the warp-consistency term (not in the reference). 3 seeds at 1500 compressed iterations
+    # (docs/trainer.md): dtu_scan24 16.43 ± 0.39 dB and dtu_scan37 12.76 ± 0.09 dB, against
+    # 15.71 ± 0.96 and 12.65 ± 0.39 without the consistency term, and 12.85 ± 0.45 and
+    # 10.07 ± 0.78 with the random box and no background handling.
     "dtu": {
         "preset": "dtu",
         "init": "dense",
         "dtu_background": True,
+        "consistency_weight": 0.1,
         "init_points": 1000,
         "lr_means_init": 0.0016,
         "lr_means_final": 0.000016,
