@@ -30,6 +30,8 @@ InitName = Literal["random", "dense"]
 """Initial Gaussians: a random box, or back-projected confident metric depth."""
 AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
+ConsistencyPartnersName = Literal["nearest", "all"]
+"""Which training views the warp-consistency term warps into the current one."""
 
 
 REFERENCE_ITERATIONS = 6000
@@ -278,12 +280,16 @@ class TrainConfig:
     """(with dtu_background) The near-black / near-white Gaussian rule at each densification."""
     consistency_weight: float = 0.0
     """Weight of the warp-consistency term (``engine/train/consistency.py``) added to the
-    photometric loss: the partner training view (nearest camera centre) warped into the current
-    one through the rendered depth; 0 = off."""
+    photometric loss: the partner training views (``consistency_partners``) warped into the
+    current one through the rendered depth; 0 = off."""
     consistency_start: int = 0
     """The consistency term applies for iterations > this."""
     consistency_occlusion: bool = True
     """Render the partner's depth (no gradient) for the term's occlusion check."""
+    consistency_partners: ConsistencyPartnersName = "nearest"
+    """``nearest``: the one training view whose camera centre is nearest; ``all``: every other
+    training view, the term being the mean over them (one more no-gradient depth render and
+    warp per extra partner)."""
     near_prune: bool = False
     """Near-plane pruning of the reference's LLFF runs (``engine/train/near_prune.py``): delete
     Gaussians close to the scene's render path in training (the LLFF spiral; other formats:

@@ -42,7 +42,7 @@ from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import CameraError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.raster import RasterOutput
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import ConsistencyPartnersName, TrainConfig
 from sparsesplat.engine.train.parts import Raster, TrainView
 
 
@@ -164,6 +164,8 @@ class ConsistencySettings:
     """The term applies for iterations > this."""
     occlusion: bool
     """Render the partner's depth for the occlusion check."""
+    partners: ConsistencyPartnersName = "nearest"
+    """``nearest``: the nearest training view only; ``all``: every other training view."""
 
     @property
     def enabled(self) -> bool:
@@ -173,12 +175,18 @@ class ConsistencySettings:
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> ConsistencySettings:
         """The consistency part of ``cfg``."""
-        return cls(cfg.consistency_weight, cfg.consistency_start, cfg.consistency_occlusion)
+        return cls(
+            cfg.consistency_weight,
+            cfg.consistency_start,
+            cfg.consistency_occlusion,
+            cfg.consistency_partners,
+        )
 
 
 class WarpConsistency:
-    """The trainer's consistency part (hook ``extra_loss``): each training view is paired
-    with the other training view whose camera centre is nearest. No state."""
+    """The trainer's consistency part (hook ``extra_loss``): each training view is paired with
+    the other training view whose camera centre is nearest, or with every other training view
+    (``partners='all'``; the term is then the mean over them). No state."""
 
     def __init__(
         self,
@@ -195,37 +203,49 @@ class WarpConsistency:
         centers = torch.stack([c.center.detach().double().cpu() for c in cameras])
         dist = torch.cdist(centers, centers)
         dist.fill_diagonal_(math.inf)
-        self.partners: list[int | None] = [
-            int(dist[i].argmin()) if len(cameras) > 1 else None for i in range(len(cameras))
+        others = len(cameras) - 1
+        keep = min(1, others) if settings.partners == "nearest" else others
+        # Nearest first; a stable sort keeps equal distances in view order.
+        self.partners: list[list[int]] = [
+            [int(j) for j in torch.sort(dist[i], stable=True).indices[:keep]]
+            for i in range(len(cameras))
         ]
-        """Partner view of each training view (None with a single view)."""
+        """Partner views of each training view, nearest first (empty with a single view)."""
+
+    def _seen_depth(self, gaussians: Gaussians, camera: Camera) -> Tensor:
+        """View-space z the partner camera sees (its no-gradient depth render / alpha; -1 where
+        its alpha is below 0.5, which passes the occlusion check)."""
+        g = gaussians
+        with torch.no_grad():
+            p = self.raster(
+                g.means, g.log_scales, g.quats, g.opacity_logits,
+                g.means.new_zeros(len(g), 0), camera, None,
+            )  # fmt: skip
+            a = p.alpha[0]
+            return torch.where(a >= 0.5, p.depth[0] / a.clamp_min(1e-6), -1.0)
 
     def extra_loss(
         self, iteration: int, gaussians: Gaussians, out: RasterOutput, view: TrainView
     ) -> Tensor | None:
-        """``weight x`` :func:`warp_consistency_loss` of the photometric render ``out``
-        against the partner photo, or None when the term is not due (or no partner)."""
-        s, j = self.settings, self.partners[view.index]
-        if iteration <= s.start or j is None:
+        """``weight x`` the mean over the partners of :func:`warp_consistency_loss` of the
+        photometric render ``out`` against the partner photo, or None when the term is not
+        due (or there is no partner)."""
+        s, partners = self.settings, self.partners[view.index]
+        if iteration <= s.start or not partners:
             return None
-        src_cam = self.cameras[j]
-        source_depth = None
-        if s.occlusion:
-            g = gaussians
-            with torch.no_grad():
-                p = self.raster(
-                    g.means, g.log_scales, g.quats, g.opacity_logits,
-                    g.means.new_zeros(len(g), 0), src_cam, None,
-                )  # fmt: skip
-                a = p.alpha[0]
-                source_depth = torch.where(a >= 0.5, p.depth[0] / a.clamp_min(1e-6), -1.0)
-        loss = warp_consistency_loss(
-            self.images[view.index],
-            self.images[j],
-            out.depth,
-            view.camera,
-            src_cam,
-            alpha=out.alpha,
-            source_depth=source_depth,
-        )
-        return s.weight * loss
+        total: Tensor | None = None
+        for j in partners:
+            src_cam = self.cameras[j]
+            source_depth = self._seen_depth(gaussians, src_cam) if s.occlusion else None
+            loss = warp_consistency_loss(
+                self.images[view.index],
+                self.images[j],
+                out.depth,
+                view.camera,
+                src_cam,
+                alpha=out.alpha,
+                source_depth=source_depth,
+            )
+            total = loss if total is None else total + loss
+        assert total is not None
+        return s.weight * total / len(partners)
