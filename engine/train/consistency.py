@@ -233,19 +233,16 @@ class WarpConsistency:
         s, partners = self.settings, self.partners[view.index]
         if iteration <= s.start or not partners:
             return None
-        total: Tensor | None = None
-        for j in partners:
-            src_cam = self.cameras[j]
-            source_depth = self._seen_depth(gaussians, src_cam) if s.occlusion else None
-            loss = warp_consistency_loss(
+        losses = [
+            warp_consistency_loss(
                 self.images[view.index],
                 self.images[j],
                 out.depth,
                 view.camera,
-                src_cam,
+                self.cameras[j],
                 alpha=out.alpha,
-                source_depth=source_depth,
+                source_depth=self._seen_depth(gaussians, self.cameras[j]) if s.occlusion else None,
             )
-            total = loss if total is None else total + loss
-        assert total is not None
-        return s.weight * total / len(partners)
+            for j in partners
+        ]
+        return s.weight * torch.stack(losses).sum() / len(losses)
