@@ -67,19 +67,17 @@ class JobStore:
         n_train_views: int,
         n_test_views: int,
         idempotency_key: str | None = None,
-    ) -> tuple[str, bool]:
-        """Insert a queued job; returns (id, created). With an ``idempotency_key`` already used
-        by ``owner``, returns the first job's id and False instead."""
+    ) -> tuple[Job, bool]:
+        """Insert a queued job; returns (job as created, True). With an ``idempotency_key``
+        already used by ``owner``, returns (that first job as it is now, False) instead."""
         now = time.time()
         with self.engine.begin() as conn:
             if idempotency_key is not None:
                 existing = conn.execute(
-                    sa.select(jobs.c.id).where(
-                        jobs.c.owner == owner, jobs.c.idempotency_key == idempotency_key
-                    )
-                ).scalar_one_or_none()
+                    self._select(owner).where(jobs.c.idempotency_key == idempotency_key)
+                ).first()
                 if existing is not None:
-                    return existing, False
+                    return self._to_job(conn, existing), False
             conn.execute(
                 jobs.insert().values(
                     id=job_id,
@@ -96,7 +94,10 @@ class JobStore:
                 )
             )
             self._append(conn, job_id, "state", {"state": "queued", "message": "submitted"})
-        return job_id, True
+            # Read inside the transaction: embedded workers poll the table and may claim the
+            # job the moment it commits, and the submitter is answered with the job as created.
+            row = conn.execute(self._select(owner).where(jobs.c.id == job_id)).one()
+            return self._to_job(conn, row), True
 
     def get(self, job_id: str, owner: str | None = None) -> Job | None:
         """The job, or None when it does not exist (or belongs to another owner)."""

@@ -110,7 +110,7 @@ async def submit_job(
         job_id = new_job_id()
         service.storage.commit_upload(staging, job_id)
         try:
-            stored_id, created = await asyncio.to_thread(
+            job, created = await asyncio.to_thread(
                 service.jobs.create, job_id, owner, upload.spec, upload.n_train_views,
                 upload.n_test_views, idempotency_key,
             )  # fmt: skip
@@ -121,13 +121,10 @@ async def submit_job(
             await asyncio.to_thread(service.dispatch.enqueue, job_id)
         else:  # a concurrent retry with the same idempotency key won the race
             service.storage.delete_job(job_id)
-            job_id = stored_id
             response.status_code = 200
     finally:
         service.storage.discard(staging)
         await form.close()
-    job = await asyncio.to_thread(service.jobs.get, job_id, owner)
-    assert job is not None
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job
 

@@ -56,8 +56,9 @@ def test_claim_job_takes_a_queued_job_once_and_drops_late_messages(
     engine = _fresh(postgres)
     migrate(engine)
     store = JobStore(engine, max_attempts=2)
-    job_id, created = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)
-    assert created
+    job, created = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)
+    job_id = job.id
+    assert created and job.state == JobState.queued
 
     # Eight deliveries of one message race: exactly one claims the job.
     claims: list[object] = []
@@ -84,13 +85,13 @@ def test_claim_job_takes_a_queued_job_once_and_drops_late_messages(
                                  {"j": job_id}).scalar_one()  # fmt: skip
     assert store.finish(job_id, holder_id, JobState.succeeded, "done")
     assert store.claim_job(job_id, "late", lease_s=30) is None
-    cancelled, _ = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)
+    cancelled = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)[0].id
     store.request_cancel(cancelled)
     assert store.claim_job(cancelled, "late", lease_s=30) is None
     assert store.claim_job("job_does_not_exist", "late", lease_s=30) is None
 
     # A lease that ran out: re-queued, claimed again as attempt 2 (then failed at the limit).
-    again, _ = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)
+    again = store.create(new_job_id(), "anon", JobSpec(iterations=10), 3, 0)[0].id
     assert store.claim_job(again, "dies", lease_s=0.05) is not None
     time.sleep(0.1)
     assert store.requeue_expired() == [again]

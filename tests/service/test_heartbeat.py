@@ -17,7 +17,7 @@ def test_stop_publishes_the_iteration_reached_after_the_last_beat(tmp_path: Path
     engine = make_engine(f"sqlite:///{tmp_path / 'jobs.db'}")
     migrate(engine)
     store = JobStore(engine, max_attempts=2)
-    job_id, _ = store.create(new_job_id(), "alice", JobSpec(iterations=40), 3, 1, None)
+    job_id = store.create(new_job_id(), "alice", JobSpec(iterations=40), 3, 1, None)[0].id
     claim = store.claim("w1", lease_s=600)
     assert claim is not None
     # One beat an hour: only the first beat (at start) and the one at stop can happen.

@@ -23,8 +23,8 @@ def store(tmp_path: Path) -> JobStore:
 
 
 def _submit(store: JobStore, owner: str = "alice", key: str | None = None) -> str:
-    job_id, _ = store.create(new_job_id(), owner, JobSpec(), 3, 1, key)
-    return job_id
+    job, _ = store.create(new_job_id(), owner, JobSpec(), 3, 1, key)
+    return job.id
 
 
 def test_migrate_twice_is_a_no_op(tmp_path: Path) -> None:
@@ -98,10 +98,10 @@ def test_cancel_queued_is_immediate_and_running_is_flagged(store: JobStore) -> N
 
 def test_idempotency_key_returns_the_first_job_per_owner(store: JobStore) -> None:
     first = _submit(store, key="k1")
-    job_id, created = store.create(new_job_id(), "alice", JobSpec(), 3, 0, "k1")
-    assert (job_id, created) == (first, False)
+    job, created = store.create(new_job_id(), "alice", JobSpec(), 3, 0, "k1")
+    assert (job.id, created) == (first, False)
     other, created = store.create(new_job_id(), "bob", JobSpec(), 3, 0, "k1")
-    assert created and other != first
+    assert created and other.id != first and other.state == JobState.queued
 
 
 def test_pages_follow_the_cursor_newest_first(store: JobStore) -> None:
