@@ -177,9 +177,11 @@ class JobStore:
                 counts[state] = int(n)
         return counts
 
-    def request_cancel(self, job_id: str) -> JobState | None:
+    def request_cancel(self, job_id: str) -> Job | None:
         """Cancel: a queued job at once; a running one is flagged and its worker stops at the
-        next progress report. Returns the state afterwards (None if the job does not exist)."""
+        next progress report. Returns the job as the request left it, read in the same
+        transaction (a worker may stop it the moment the flag commits); None if it does not
+        exist."""
         with self.engine.begin() as conn:
             state = conn.execute(
                 sa.select(jobs.c.state).where(jobs.c.id == job_id)
@@ -193,10 +195,10 @@ class JobStore:
                     .values(state=JobState.cancelled.value, finished_at=time.time())
                 )
                 self._append(conn, job_id, "state", {"state": "cancelled", "message": "cancelled"})
-                return JobState.cancelled
-            if state == JobState.running.value:
+            elif state == JobState.running.value:
                 conn.execute(jobs.update().where(jobs.c.id == job_id).values(cancel_requested=True))
-            return JobState(state)
+            row = conn.execute(self._select(None).where(jobs.c.id == job_id)).one()
+            return self._to_job(conn, row)
 
     def delete(self, job_id: str) -> None:
         """Remove the job and its events (files are the storage's business)."""

@@ -15,7 +15,7 @@ from starlette.formparsers import MultiPartException
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
 from sparsesplat.api.store.jobs import new_job_id
 from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
-from sparsesplat.server.errors import ServiceError, invalid
+from sparsesplat.server.errors import ServiceError, invalid, not_found
 from sparsesplat.server.uploads import validate_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -152,13 +152,13 @@ def get_job(job: OwnJobDep) -> Job:
 
 
 @router.post("/{job_id}/cancel", response_model=Job, summary="Cancel a job")
-def cancel_job(job: OwnJobDep, service: ServiceDep, owner: OwnerDep) -> Job:
+def cancel_job(job: OwnJobDep, service: ServiceDep) -> Job:
     """A queued job is cancelled at once; a running one stops at its next iteration (its
     worker is ended if it has not stopped within the grace period). Terminal jobs are left as
     they are."""
-    service.jobs.request_cancel(job.id)
-    updated = service.jobs.get(job.id, owner)
-    assert updated is not None
+    updated = service.jobs.request_cancel(job.id)
+    if updated is None:  # deleted between the ownership check and the request
+        raise not_found("job", job.id)
     return updated
 
 

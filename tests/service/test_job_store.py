@@ -90,8 +90,11 @@ def test_events_are_numbered_without_gaps_and_resume_after(store: JobStore) -> N
 def test_cancel_queued_is_immediate_and_running_is_flagged(store: JobStore) -> None:
     queued, running = _submit(store), _submit(store)
     store.claim("w", 30)  # takes `queued` (oldest)
-    assert store.request_cancel(running) == JobState.cancelled
-    assert store.request_cancel(queued) == JobState.running
+    cancelled = store.request_cancel(running)
+    assert cancelled is not None and cancelled.state == JobState.cancelled
+    flagged = store.request_cancel(queued)
+    assert flagged is not None and flagged.state == JobState.running
+    assert store.request_cancel("job_does_not_exist") is None
     ours, cancel = store.heartbeat(queued, "w", 30)
     assert ours and cancel
 
