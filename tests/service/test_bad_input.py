@@ -1,6 +1,7 @@
 """Bad input gets a 4xx naming the problem, and leaves no job and no file behind.
 
-In-process (the ASGI app with its lifespan, no workers): these are about validation only.
+In-process (the ASGI app with its lifespan, no workers): these are about validation, and about
+what the job routes answer whatever a worker does meanwhile.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from sparsesplat.api.settings import Settings
+from sparsesplat.api.store.jobs import JobStore
 from sparsesplat.server.app import create_app
 
 SIZE = 32
@@ -113,6 +115,34 @@ def test_a_valid_upload_is_accepted_and_stored_under_our_names(client: TestClien
     stored = json.loads((upload / "cameras.json").read_text())
     assert [f["image"] for f in stored["frames"]] == [f"images/00{i}.png" for i in range(3)]
     assert all((upload / f["image"]).is_file() for f in stored["frames"])
+
+
+class _ClaimingAtOnce:
+    """A dispatcher whose worker claims the job the moment it is announced."""
+
+    def __init__(self, jobs: JobStore) -> None:
+        self.jobs = jobs
+
+    def enqueue(self, job_id: str) -> None:
+        claim = self.jobs.claim("eager", lease_s=60)
+        assert claim is not None and claim.job_id == job_id
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_answers_are_the_job_as_the_request_left_it_however_fast_the_worker(
+    client: TestClient,
+) -> None:
+    service = client.app.state.service  # type: ignore[attr-defined]
+    service.dispatch = _ClaimingAtOnce(service.jobs)
+    response = client.post("/v1/jobs", files=_parts(_cameras()))
+    assert response.status_code == 201 and response.json()["state"] == "queued"
+    job_id = response.json()["id"]
+    assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "running"
+    # Cancelling a running job flags it; the answer is the job at the flag, not after.
+    assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "running"
+    assert service.jobs.heartbeat(job_id, "eager", 60) == (True, True)
 
 
 def _mask_png(width: int = SIZE, height: int = SIZE) -> bytes:
