@@ -96,16 +96,14 @@ class JobStore:
             self._append(conn, job_id, "state", {"state": "queued", "message": "submitted"})
             # Read inside the transaction: embedded workers poll the table and may claim the
             # job the moment it commits, and the submitter is answered with the job as created.
-            row = conn.execute(self._select(owner).where(jobs.c.id == job_id)).one()
-            return self._to_job(conn, row), True
+            created = self._read(conn, job_id, owner)
+            assert created is not None
+            return created, True
 
     def get(self, job_id: str, owner: str | None = None) -> Job | None:
         """The job, or None when it does not exist (or belongs to another owner)."""
         with self.engine.begin() as conn:
-            row = conn.execute(self._select(owner).where(jobs.c.id == job_id)).first()
-            if row is None:
-                return None
-            return self._to_job(conn, row)
+            return self._read(conn, job_id, owner)
 
     def find_by_idempotency_key(self, owner: str, key: str) -> Job | None:
         """The job ``owner`` submitted with idempotency ``key``, if any."""
@@ -197,8 +195,7 @@ class JobStore:
                 self._append(conn, job_id, "state", {"state": "cancelled", "message": "cancelled"})
             elif state == JobState.running.value:
                 conn.execute(jobs.update().where(jobs.c.id == job_id).values(cancel_requested=True))
-            row = conn.execute(self._select(None).where(jobs.c.id == job_id)).one()
-            return self._to_job(conn, row)
+            return self._read(conn, job_id)
 
     def delete(self, job_id: str) -> None:
         """Remove the job and its events (files are the storage's business)."""
@@ -433,6 +430,12 @@ class JobStore:
             )
         )
         return int(seq)
+
+    @classmethod
+    def _read(cls, conn: sa.Connection, job_id: str, owner: str | None = None) -> Job | None:
+        """The job as ``conn``'s transaction sees it (None if absent or another owner's)."""
+        row = conn.execute(cls._select(owner).where(jobs.c.id == job_id)).first()
+        return None if row is None else cls._to_job(conn, row)
 
     @staticmethod
     def _to_job(conn: sa.Connection, row: sa.Row[Any]) -> Job:
