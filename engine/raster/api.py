@@ -96,6 +96,7 @@ def rasterize(
     far: float = 1e10,
     eps2d: float = 0.3,
     backend: str = "auto",
+    opacity_depth: bool = False,
 ) -> RasterOutput:
     """Render N Gaussians through ``camera``; differentiable w.r.t. every tensor input.
 
@@ -112,6 +113,10 @@ def rasterize(
         eps2d: low-pass dilation added to the 2D covariance diagonal (pixels^2).
         backend: "auto" (CUDA tensors -> gsplat, CPU tensors -> native kernel), "cpu", "cuda",
             or "reference" (dense float64, small scenes only).
+        opacity_depth: also return ``opacity_depth``, the depth whose gradient reaches only
+            the opacities (the soft-depth term on this render). The CPU kernel routes it in
+            the same backward; the other backends render the depth a second time with the
+            geometry detached (the same values, the same gradient).
 
     Returns:
         RasterOutput with image (C,H,W), depth (1,H,W) = sum of w_i z_i (not divided by alpha),
@@ -124,6 +129,34 @@ def rasterize(
     )  # fmt: skip
     if backend == "auto":
         backend = "cuda" if means.is_cuda else "cpu"
+    out = _dispatch(
+        means, log_scales, quats, opacity_logits, features, camera, bg, near, far, eps2d, backend
+    )
+    if not opacity_depth or not torch.is_grad_enabled():
+        out.opacity_depth = None
+    elif out.opacity_depth is None and backend != "cpu":
+        empty = features.new_zeros(means.shape[0], 0)
+        out.opacity_depth = _dispatch(
+            means.detach(), log_scales.detach(), quats.detach(), opacity_logits, empty, camera,
+            empty.new_zeros(0), near, far, eps2d, backend,
+        ).depth  # fmt: skip
+    return out
+
+
+def _dispatch(
+    means: Tensor,
+    log_scales: Tensor,
+    quats: Tensor,
+    opacity_logits: Tensor,
+    features: Tensor,
+    camera: Camera,
+    bg: Tensor,
+    near: float,
+    far: float,
+    eps2d: float,
+    backend: str,
+) -> RasterOutput:
+    """Run the named backend on validated inputs."""
     if backend == "reference":
         from sparsesplat.engine.raster.reference import rasterize_reference
 

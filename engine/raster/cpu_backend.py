@@ -29,7 +29,7 @@ class _Blend(torch.autograd.Function):
         radii: Tensor,
         width: int,
         height: int,
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         ext = load_extension()
         out = ext.forward(
             means2d, conics, opacities, depths, radii, features, background, width, height, True
@@ -38,19 +38,28 @@ class _Blend(torch.autograd.Function):
         ctx.save_for_backward(background, *out[4:])
         ctx.n = means2d.shape[0]
         ctx.mark_non_differentiable(stats)
-        return image, depth, alpha, stats
+        # The same depth values as a second output, so a loss on it gets a gradient of its own
+        # that the kernel routes to the opacities only (see RasterOutput.opacity_depth).
+        return image, depth, alpha, stats, depth.clone()
 
     @staticmethod
     def backward(
-        ctx: Any, v_image: Tensor, v_depth: Tensor, v_alpha: Tensor, _v_stats: Tensor
+        ctx: Any,
+        v_image: Tensor,
+        v_depth: Tensor,
+        v_alpha: Tensor,
+        _v_stats: Tensor,
+        v_depth_opacity: Tensor | None,
     ) -> tuple[Tensor | None, ...]:
         background, recs, feats, rank, offsets, lists, t_final, last = ctx.saved_tensors
         ext = load_extension()
         # The soft-depth pass trains opacities only: skip the 2D mean and conic gradients.
         geometry = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
+        v_dop = None if v_depth_opacity is None else v_depth_opacity.contiguous()
         v_m2, v_con, v_op, v_dep, v_feat = ext.backward(
             recs, feats, rank, offsets, lists, t_final, last, background,
-            v_image.contiguous(), v_depth.contiguous(), v_alpha.contiguous(), ctx.n, geometry,
+            v_image.contiguous(), v_depth.contiguous(), v_alpha.contiguous(), v_dop, ctx.n,
+            geometry,
         )  # fmt: skip
         if not geometry:
             v_m2 = v_con = None
@@ -80,10 +89,11 @@ def rasterize_cpu(
     radii = proj.radii.contiguous()
     tensors = (proj.means2d, proj.conics, proj.opacities, proj.depths, features, background)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+    opacity_depth = None
     if needs_grad:
         proj.means2d.retain_grad() if proj.means2d.requires_grad else None
         parts = [t.contiguous() for t in tensors]
-        image, depth, alpha, stats = _Blend.apply(*parts, radii, w, h)
+        image, depth, alpha, stats, opacity_depth = _Blend.apply(*parts, radii, w, h)
     else:
         # Forward only: the kernel keeps no backward state (no T_final / last-index buffers).
         parts = [t.detach().contiguous() for t in tensors]
@@ -95,4 +105,5 @@ def rasterize_cpu(
         radii=radii.max(dim=-1).values.to(torch.int32),
         means2d=proj.means2d,
         stats={"pairs_evaluated": int(stats[0]), "pairs_blended": int(stats[1])},
+        opacity_depth=opacity_depth,
     )

@@ -26,3 +26,8 @@ class RasterOutput:
     gradient that densification accumulates."""
     stats: dict[str, Any] | None = None
     """Backend counters when available (CPU: ``pairs_evaluated``, ``pairs_blended``), else None."""
+    opacity_depth: Tensor | None = None
+    """(1, H, W) the same values as ``depth``, whose gradient reaches the opacities only (the
+    centres, scales, rotations and features see none of it): DNGaussian's soft-depth term
+    computed on the photometric render instead of a second one. Set by ``rasterize(...,
+    opacity_depth=True)`` when gradients are enabled; None otherwise."""

@@ -172,6 +172,13 @@ class TrainConfig:
     photometric momentum). 'joint' (the paper's single objective L = L_color + R_hard +
     R_soft): their gradients are added to the photometric gradient and the iteration takes
     one step."""
+    soft_depth_fused: bool = True
+    """Compute the soft-depth term on the photometric render instead of a render of its own:
+    the rasterizer routes its gradient to the opacities alone (the same gradient as the
+    reference's detached pass), and it joins the photometric step (the paper's summed
+    objective). Saves one full render and backward per iteration. Deviation: with DropGaussian
+    on, the term sees the photometric render's kept Gaussians. False: the reference's separate
+    pass (with ``auxiliary_step`` deciding its optimizer step)."""
     soft_depth_ema_gate: float | None = None
     """DTU: take a soft step only while the EMA of the hard loss is below this; None = off."""
     patch_min: int = 5

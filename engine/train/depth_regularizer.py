@@ -81,6 +81,9 @@ class DepthSettings:
     fill_background: bool = False
     """DTU: fill the view's background mask (``TrainView.mask``) in rendered and prior depth
     with their foreground means (``dtu_background`` and ``dtu_depth_fill``)."""
+    soft_fused: bool = False
+    """The soft term is computed on the photometric render (:meth:`DepthRegularizer.soft_loss`)
+    instead of in a pass of its own."""
 
     @classmethod
     def from_config(cls, cfg: TrainConfig) -> DepthSettings:
@@ -104,6 +107,7 @@ class DepthSettings:
             empty_background=cfg.depth_empty_background,
             joint=cfg.auxiliary_step == "joint",
             fill_background=cfg.dtu_background and cfg.dtu_depth_fill,
+            soft_fused=cfg.soft_depth_fused,
         )
 
 
@@ -183,9 +187,7 @@ class DepthRegularizer:
         """The iteration's hard and soft passes, each with its own optimizer step (or, joint,
         its gradients left for the photometric step), when the schedules say so."""
         s, g, it = self.settings, gaussians, iteration
-        if it % s.every != 0 or (s.until is not None and it >= s.until):
-            return
-        if self.views is not None and view.index not in self.views:
+        if not self._due(it, view):
             return
         n = len(g)
         empty = g.means.new_zeros(n, 0)
@@ -203,10 +205,7 @@ class DepthRegularizer:
             ema = self.hard_ema
             self.hard_ema = hv if ema is None else HARD_EMA_DECAY * ema + 0.1 * hv
             timer.tick("hard_depth")
-        gate_open = s.soft_ema_gate is None or (
-            self.hard_ema is not None and self.hard_ema < s.soft_ema_gate
-        )
-        if s.soft and it > s.soft_start and gate_open:
+        if self._soft_due(it) and not s.soft_fused:
             out = self.raster(
                 g.means.detach(),
                 g.log_scales.detach(),
@@ -221,6 +220,36 @@ class DepthRegularizer:
             loss.backward()
             finish_auxiliary_pass(optimizer, s.joint)
             timer.tick("soft_depth")
+
+    def _due(self, iteration: int, view: TrainView) -> bool:
+        """Whether the depth schedule and the view's prior allow a depth term this iteration."""
+        s = self.settings
+        if iteration % s.every != 0 or (s.until is not None and iteration >= s.until):
+            return False
+        return self.views is None or view.index in self.views
+
+    def _soft_due(self, iteration: int) -> bool:
+        """Whether the soft term's schedule and (DTU) the hard-loss gate are open."""
+        s = self.settings
+        gate_open = s.soft_ema_gate is None or (
+            self.hard_ema is not None and self.hard_ema < s.soft_ema_gate
+        )
+        return s.soft and iteration > s.soft_start and gate_open
+
+    def wants_fused_soft(self, iteration: int, view: TrainView) -> bool:
+        """Whether the photometric render must provide ``opacity_depth`` for :meth:`soft_loss`
+        this iteration (call after :meth:`step_pre_photometric`, which updates the gate)."""
+        return (
+            self.settings.soft_fused and self._due(iteration, view) and self._soft_due(iteration)
+        )
+
+    def soft_loss(
+        self, opacity_depth: Tensor, view: TrainView, iteration: int, extent: float
+    ) -> Tensor:
+        """The soft-depth term on the photometric render's opacity-only depth (its gradient
+        reaches the opacities alone), to be added to the photometric loss."""
+        mask = view.mask if self.settings.fill_background else None
+        return self.depth_loss(opacity_depth, view.index, iteration, extent, mask)
 
     def depth_loss(
         self, depth: Tensor, index: int, iteration: int, extent: float, mask: Tensor | None = None

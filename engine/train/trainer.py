@@ -408,6 +408,7 @@ class Trainer:
         feats: Tensor,
         cam: Camera,
         bg: Tensor | None,
+        opacity_depth: bool = False,
     ) -> RasterOutput:
         cfg = self.config
         return rasterize(
@@ -421,6 +422,7 @@ class Trainer:
             near=self.raster_near,
             eps2d=cfg.eps2d,
             backend=cfg.raster_backend,
+            opacity_depth=opacity_depth,
         )
 
     def render(self, camera: Camera, background: Tensor | None = None) -> RasterOutput:
@@ -585,12 +587,18 @@ class Trainer:
                 drop.opacity_logits(g.opacity_logits),
                 drop.select(leaf),
             )
-        out = self._raster(*inputs, view.camera, self.background)
+        fused_soft = self.depth is not None and self.depth.wants_fused_soft(it, view)
+        out = self._raster(*inputs, view.camera, self.background, opacity_depth=fused_soft)
         timer.tick("photo_render")
         loss, photo = self._photometric_loss(out.image, view)
         if self.consistency is not None:
             extra = self.consistency.extra_loss(it, g, out, view)
             loss = loss if extra is None else loss + extra
+        if fused_soft and self.depth is not None and out.opacity_depth is not None:
+            soft = self.depth.soft_loss(out.opacity_depth, view, it, self.extent)
+            self.guard.check_finite(soft.detach(), "the soft-depth loss", it)
+            loss = loss + soft
+            timer.tick("soft_depth")
         self.guard.check_finite(loss.detach(), "the photometric loss", it)
         timer.tick("losses")
         loss.backward()

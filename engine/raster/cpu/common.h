@@ -52,6 +52,10 @@ struct TileBwd {
   const float* v_image;     // (C, H, W)
   const float* v_depth;     // (H, W)
   const float* v_alpha;     // (H, W)
+  // (H, W) or null: the gradient of a loss on the rendered depth that may move only the
+  // opacities (the soft-depth term fused into the photometric render). It adds to the opacity
+  // gradient alone: no 2D mean, conic or z gradient comes from it.
+  const float* v_depth_opacity;
   bool geometry;            // false: only opacity, depth and feature gradients are wanted
 };
 

@@ -263,9 +263,10 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
 
 // Backward of one tile: walks the tile's list back to front, undoing the transmittance, and adds
 // per-Gaussian gradients (layout GradLayout) into grad (this thread's buffer, indexed by rank).
-// scratch holds (3 C + 4) * 256 floats (64-byte aligned). Geo = false skips the 2D mean and
-// conic gradients (their slots stay zero): the soft-depth pass trains opacities only.
-template <bool Geo>
+// scratch holds (2 C + 3) * 256 + S * 16 floats (64-byte aligned). Geo = false skips the 2D mean
+// and conic gradients (their slots stay zero): the soft-depth pass trains opacities only.
+// Op = true also reads v_depth_opacity, whose dL/dalpha_i reaches the opacity slot only.
+template <bool Geo, bool Op>
 static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* scratch,
                                float* grad) {
   const int x0 = tile_x * TILE, y0 = tile_y * TILE;
@@ -276,6 +277,7 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   vf* vimg = reinterpret_cast<vf*>(scratch);  // [(C + 1)][16]: dL/dimage, dL/ddepth last
   vf* after = vimg + (C + 1) * TILE;           // [(C + 1)][16]: sum of w f over later Gaussians
   vf* gacc = after + (C + 1) * TILE;           // [S]: per-Gaussian accumulators
+  vf* vop = gacc + S;                          // [16]: dL/ddepth of the opacity-only loss
   vf T[TILE], kbg[TILE];
   vi last[TILE];
   int row_last[TILE];
@@ -291,9 +293,11 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       vimg[k * TILE + r] = vf{};
       after[k * TILE + r] = vf{};
     }
+    if constexpr (Op) vop[r] = vf{};
     if (r >= rows) continue;
     const int64_t base = (int64_t)(y0 + r) * a.width + x0;
     for (int l = 0; l < cols; ++l) {
+      if constexpr (Op) vop[r][l] = a.v_depth_opacity[base + l];
       const float t = a.t_final[base + l];
       float k_bg = a.v_alpha[base + l];
       for (int k = 0; k < C; ++k) {
@@ -346,16 +350,23 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         gacc[kGradFixed + k] += w * gk;
         after[k * TILE + r] += w * f[k];
       }
+      vf v_alpha_op = vf{};
       {
         const vf gd = vimg[C * TILE + r];
-        v_alpha += (g.z * t_before - after[C * TILE + r] * ra) * gd;
+        // d(depth)/d(alpha_i) is shared by both depth gradients; taken before `after` grows.
+        const vf dz = g.z * t_before - after[C * TILE + r] * ra;
+        v_alpha += dz * gd;
+        if constexpr (Op) v_alpha_op = dz * vop[r];
         gacc[kGradZ] += w * gd;
         after[C * TILE + r] += w * g.z;
       }
       // The 0.999 clamp has no gradient (gsplat: only when o * exp(-power) <= 0.999).
       const vi live = valid & (oe <= 0.999f);
       const vf va = vsel(live, v_alpha, vf{});
-      gacc[kGradO] += e * va;
+      if constexpr (Op)
+        gacc[kGradO] += e * vsel(live, v_alpha + v_alpha_op, vf{});
+      else
+        gacc[kGradO] += e * va;
       if constexpr (Geo) {
         const vf v_sigma = -oe * va;
         gacc[kGradA] += 0.5f * dx * dx * v_sigma;
@@ -373,10 +384,13 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
 }
 
 void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad) {
+  const bool op = a.v_depth_opacity != nullptr;
   if (a.geometry)
-    backward_tile_impl<true>(a, tile_x, tile_y, scratch, grad);
+    op ? backward_tile_impl<true, true>(a, tile_x, tile_y, scratch, grad)
+       : backward_tile_impl<true, false>(a, tile_x, tile_y, scratch, grad);
   else
-    backward_tile_impl<false>(a, tile_x, tile_y, scratch, grad);
+    op ? backward_tile_impl<false, true>(a, tile_x, tile_y, scratch, grad)
+       : backward_tile_impl<false, false>(a, tile_x, tile_y, scratch, grad);
 }
 
 }  // namespace RASTER_NS

@@ -225,16 +225,24 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics,
 }
 
 // Returns {v_means2d (N,2), v_conics (N,3), v_opacities (N,), v_depths (N,), v_features (N,C)};
-// with geometry = false, v_means2d and v_conics are zeros (not computed).
+// with geometry = false, v_means2d and v_conics are zeros (not computed). v_depth_opacity, when
+// defined, is the gradient of a depth loss that may move only the opacities: it adds to
+// v_opacities alone.
 std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
                                     torch::Tensor rank_t, torch::Tensor offsets_t,
                                     torch::Tensor list_t, torch::Tensor t_final,
                                     torch::Tensor last, torch::Tensor bg, torch::Tensor v_image,
-                                    torch::Tensor v_depth, torch::Tensor v_alpha, int64_t n,
+                                    torch::Tensor v_depth, torch::Tensor v_alpha,
+                                    c10::optional<torch::Tensor> v_depth_opacity, int64_t n,
                                     bool geometry) {
   check_cpu_f32(v_image, "grad image");
   check_cpu_f32(v_depth, "grad depth");
   check_cpu_f32(v_alpha, "grad alpha");
+  const float* v_dop = nullptr;
+  if (v_depth_opacity.has_value() && v_depth_opacity->defined()) {
+    check_cpu_f32(*v_depth_opacity, "grad opacity-only depth");
+    v_dop = v_depth_opacity->data_ptr<float>();
+  }
   const int C = (int)feats_t.size(1);
   const int64_t M = feats_t.size(0);
   const int H = (int)t_final.size(0), W = (int)t_final.size(1);
@@ -247,11 +255,11 @@ std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
                feats_t.data_ptr<float>(), list_t.data_ptr<int32_t>(),
                offsets_t.data_ptr<int32_t>(), tiles_x, W, H, C, bg.data_ptr<float>(),
                t_final.data_ptr<float>(), last.data_ptr<int32_t>(), v_image.data_ptr<float>(),
-               v_depth.data_ptr<float>(), v_alpha.data_ptr<float>(), geometry};
+               v_depth.data_ptr<float>(), v_alpha.data_ptr<float>(), v_dop, geometry};
   const BwdFn bwd = variant().bwd;
 #pragma omp parallel num_threads(nt)
   {
-    AlignedBuf scratch((size_t)(2 * (C + 1) * TILE + S) * TILE);
+    AlignedBuf scratch((size_t)(2 * (C + 1) * TILE + S + TILE) * TILE);
     float* mine = grads.data() + (size_t)omp_get_thread_num() * M * S;
 #pragma omp for schedule(dynamic, 1)
     for (int t = 0; t < n_tiles; ++t) bwd(args, t % tiles_x, t / tiles_x, scratch.p, mine);
