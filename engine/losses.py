@@ -88,20 +88,38 @@ def photometric_loss(
 
 
 def patchify(depth: Tensor, patch: int) -> Tensor:
-    """(1, H, W) or (H, W) → (P, patch²) non-overlapping tiles from the top-left corner; the
-    last H mod p rows and W mod p columns are dropped (unfold with stride = kernel)."""
-    d = depth.reshape(1, 1, depth.shape[-2], depth.shape[-1])
-    return F.unfold(d, kernel_size=patch, stride=patch).squeeze(0).T
+    """(1, H, W) or (H, W) → (P, patch²) non-overlapping tiles from the top-left corner, row by
+    row; the last H mod p rows and W mod p columns are dropped (the layout of ``unfold`` with
+    stride = kernel, made by one reshaped copy instead of im2col)."""
+    h, w = depth.shape[-2], depth.shape[-1]
+    rows, cols = h // patch, w // patch
+    d = depth.reshape(h, w)[: rows * patch, : cols * patch]
+    tiles = d.reshape(rows, patch, cols, patch).permute(0, 2, 1, 3)
+    return tiles.reshape(rows * cols, patch * patch)
+
+
+def _std(centred: Tensor, dim: int | None = None) -> Tensor:
+    """Sample standard deviation of already-centred values (over ``dim``, or all of them).
+    The variance is floored at 1e-30 before the square root so a constant patch has a finite
+    (zero) gradient, where ``Tensor.std`` gives 0/0; the floor moves the value by 1e-15 at
+    most, far below the normalization's epsilon floor."""
+    n = centred.numel() if dim is None else centred.shape[dim]
+    if n < 2:
+        return centred.new_zeros(()) if dim is None else centred.new_zeros(centred.shape[0], 1)
+    sq = centred.square()
+    total = sq.sum() if dim is None else sq.sum(dim=dim, keepdim=True)
+    return (total / (n - 1)).clamp_min(1e-30).sqrt()
 
 
 def _normalize(patches: Tensor, scale: Tensor | None) -> Tensor:
     """Subtract each patch's mean, divide by its own std (local) or ``scale`` (global), plus an
     epsilon of 1% of the std of all patch values (floored so constant maps give zeros)."""
-    mean = patches.mean(dim=1, keepdim=True)
+    centred = patches - patches.mean(dim=1, keepdim=True)
     if scale is None:
-        scale = patches.std(dim=1, keepdim=True) if patches.shape[1] > 1 else torch.zeros_like(mean)
-    eps = torch.clamp_min(0.01 * patches.reshape(-1).std(), _STD_FLOOR)
-    return (patches - mean) / (scale + eps)
+        scale = _std(centred, dim=1)
+    every = patches - patches.mean()
+    eps = torch.clamp_min(0.01 * _std(every), _STD_FLOOR)
+    return centred / (scale + eps)
 
 
 def margin_mse(residual: Tensor, margin: float) -> Tensor:
@@ -116,28 +134,56 @@ def margin_mse(residual: Tensor, margin: float) -> Tensor:
     return torch.where(keep, residual.square(), 0.0).sum() / count
 
 
+class DepthTarget:
+    """The prior-only parts of the depth losses of one training view, computed once: the
+    prior's normalized patches per (patch size, mode) and the smoothness weights of its guide.
+    The prior never changes during a run, so only the rendered depth is normalized per call."""
+
+    def __init__(self, prior: Tensor, guide: Tensor | None = None) -> None:
+        """``prior`` (H, W) or (1, H, W); ``guide``: the smoothness guide (see
+        :func:`edge_aware_smoothness`), or None when the run uses no smoothness."""
+        self.prior = prior.detach().reshape(prior.shape[-2], prior.shape[-1])
+        self._global_scale = _std(self.prior - self.prior.mean())
+        self._patches: dict[tuple[int, str], Tensor] = {}
+        self.smooth_weights: tuple[Tensor, Tensor] | None = None
+        """Per neighbour direction, exp(-|dM|) over its sum (None without a guide)."""
+        if guide is not None:
+            g = guide.detach().reshape(self.prior.shape)
+            self.smooth_weights = _smooth_weights(g)
+
+    def normalized(self, patch: int, mode: str) -> Tensor:
+        """The prior's normalized patches for ``patch`` and ``mode`` (cached)."""
+        key = (patch, mode)
+        if key not in self._patches:
+            scale = self._global_scale if mode == "global" else None
+            self._patches[key] = _normalize(patchify(self.prior, patch), scale)
+        return self._patches[key]
+
+
 def depth_norm_loss(
-    depth: Tensor, target: Tensor, patch: int, margin: float, mode: str = "local"
+    depth: Tensor, target: Tensor | DepthTarget, patch: int, margin: float, mode: str = "local"
 ) -> Tensor:
     """Patch-normalized depth loss between rendered ``depth`` and prior ``target`` (same size,
     "larger = farther"). ``mode`` 'local' divides each patch by its own std, 'global' by the
-    detached std of the whole map (Global-Local Depth Normalization)."""
+    detached std of the whole map (Global-Local Depth Normalization). ``target`` may be a
+    :class:`DepthTarget` holding the prior's normalized patches."""
+    if mode not in ("local", "global"):
+        raise ValueError(f"depth_norm_loss: mode must be 'local' or 'global', got {mode!r}")
+    tgt = target if isinstance(target, DepthTarget) else DepthTarget(target)
     h, w = depth.shape[-2], depth.shape[-1]
     patch = max(1, min(patch, h, w))
-    pd, pt = patchify(depth, patch), patchify(target, patch)
+    pd = patchify(depth, patch)
     if mode == "local":
-        nd, nt = _normalize(pd, None), _normalize(pt, None)
-    elif mode == "global":
-        nd = _normalize(pd, depth.detach().std())
-        nt = _normalize(pt, target.detach().std())
+        nd = _normalize(pd, None)
     else:
-        raise ValueError(f"depth_norm_loss: mode must be 'local' or 'global', got {mode!r}")
-    return margin_mse(nd - nt, margin)
+        flat = depth.detach().reshape(-1)
+        nd = _normalize(pd, _std(flat - flat.mean()))
+    return margin_mse(nd - tgt.normalized(patch, mode), margin)
 
 
 def global_local_depth_loss(
     depth: Tensor,
-    target: Tensor,
+    target: Tensor | DepthTarget,
     patch_range: tuple[int, int],
     margin: float,
     generator: torch.Generator,
@@ -149,21 +195,35 @@ def global_local_depth_loss(
     lo, hi = patch_range
     p1 = int(torch.randint(lo, hi + 1, (1,), generator=generator))
     p2 = int(torch.randint(lo, hi + 1, (1,), generator=generator))
+    tgt = target if isinstance(target, DepthTarget) else DepthTarget(target)
     return global_weight * depth_norm_loss(
-        depth, target, p1, margin, "global"
-    ) + local_weight * depth_norm_loss(depth, target, p2, margin, "local")
+        depth, tgt, p1, margin, "global"
+    ) + local_weight * depth_norm_loss(depth, tgt, p2, margin, "local")
 
 
-def edge_aware_smoothness(depth: Tensor, guide: Tensor) -> Tensor:
-    """Sum |dD| exp(-|dM|) / sum exp(-|dM|) over x and y neighbours, with weights from the
-    guide (the prior depth, pre-scaled to the reference's [0, 257] range by the caller)."""
-    d = depth.reshape(depth.shape[-2], depth.shape[-1])
-    g = guide.reshape(d.shape)
-    total = d.new_zeros(())
+def _smooth_weights(guide: Tensor) -> tuple[Tensor, Tensor]:
+    """exp(-|dM|) along y and x, each divided by its sum (clamped away from 0)."""
+    out = []
     for dim in (0, 1):
-        dd = torch.diff(d, dim=dim).abs()
-        wg = torch.exp(-torch.diff(g, dim=dim).abs())
-        total = total + (dd * wg).sum() / wg.sum().clamp_min(1e-12)
+        wg = torch.exp(-torch.diff(guide, dim=dim).abs())
+        out.append(wg / wg.sum().clamp_min(1e-12))
+    return out[0], out[1]
+
+
+def edge_aware_smoothness(
+    depth: Tensor, guide: Tensor | None = None, weights: tuple[Tensor, Tensor] | None = None
+) -> Tensor:
+    """Sum |dD| exp(-|dM|) / sum exp(-|dM|) over x and y neighbours, with weights from the
+    guide (the prior depth, pre-scaled to the reference's [0, 257] range by the caller), or
+    from ``weights`` precomputed by :class:`DepthTarget` for that guide."""
+    d = depth.reshape(depth.shape[-2], depth.shape[-1])
+    if weights is None:
+        if guide is None:
+            raise ValueError("edge_aware_smoothness: give a guide or its weights")
+        weights = _smooth_weights(guide.reshape(d.shape))
+    total = d.new_zeros(())
+    for dim, wg in zip((0, 1), weights, strict=True):
+        total = total + (torch.diff(d, dim=dim).abs() * wg).sum()
     return total
 
 

@@ -217,6 +217,10 @@ class TrainConfig:
     """Only Gaussians with opacity above this are cloned or split."""
     prune_opacity: float = 0.01
     """Prune Gaussians with opacity below this at each densification."""
+    opacity_decay: float = 1.0
+    """Multiply every opacity by this after each optimizer step while densification runs
+    (iterations < ``densify_until``): Gaussians the views do not keep re-asserting fade and are
+    pruned, so floaters do not survive (Binocular3DGS uses 0.995). 1 = off."""
     opacity_reset_interval: int | None = None
     """3DGS opacity reset period (Blender SH recipe: 3000); None = never."""
     max_screen_size: float | None = None
@@ -341,6 +345,8 @@ class TrainConfig:
             raise ConfigError(f"init_opacity must be in (0, 1), got {self.init_opacity}")
         if self.depth_every < 1 or self.densify_interval < 1:
             raise ConfigError("depth_every and densify_interval must be >= 1")
+        if not (math.isfinite(self.opacity_decay) and 0.0 < self.opacity_decay <= 1.0):
+            raise ConfigError(f"opacity_decay must be in (0, 1], got {self.opacity_decay}")
         if not (math.isfinite(self.dropout_rate) and 0.0 <= self.dropout_rate < 1.0):
             raise ConfigError(f"dropout_rate must be in [0, 1), got {self.dropout_rate}")
         if self.dense_init_points is not None and self.dense_init_points < 1:

@@ -24,7 +24,7 @@ from torch import Tensor
 
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
-from sparsesplat.engine.losses import edge_aware_smoothness, global_local_depth_loss
+from sparsesplat.engine.losses import DepthTarget, edge_aware_smoothness, global_local_depth_loss
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.dtu_background import fill_background_depth
 from sparsesplat.engine.train.guard import DivergenceGuard
@@ -169,6 +169,12 @@ class DepthRegularizer:
             self.priors.append(d)
             span = float(d.max() - d.min())
             self.smooth_guides.append((d - d.min()) / span * 257.0 if span > 0 else d * 0)
+        self.targets = [
+            DepthTarget(p, g if settings.smooth_weight > 0 else None)
+            for p, g in zip(self.priors, self.smooth_guides, strict=True)
+        ]
+        """The priors' fixed loss parts (normalized patches, smoothness weights), per view;
+        not used where a view's background mask edits the prior each iteration (DTU)."""
         self.hard_logit = float(inverse_sigmoid(torch.tensor(settings.hard_opacity)))
         """The hard pass's constant opacity as a logit."""
         self.hard_ema: float | None = None
@@ -259,9 +265,9 @@ class DepthRegularizer:
         ``mask``: background pixels filled with the foreground means in both depths first."""
         s = self.settings
         d = depth.reshape(depth.shape[-2], depth.shape[-1])
-        prior = self.priors[index]
+        prior: Tensor | DepthTarget = self.targets[index]
         if mask is not None:
-            d, prior = fill_background_depth(d, prior, mask)
+            d, prior = fill_background_depth(d, self.priors[index], mask)
         loss = global_local_depth_loss(
             d,
             prior,
@@ -272,7 +278,8 @@ class DepthRegularizer:
             s.local_weight,
         )
         if s.smooth_weight > 0 and iteration > s.smooth_start:
-            smooth = edge_aware_smoothness(d / extent, self.smooth_guides[index])
+            weights = self.targets[index].smooth_weights
+            smooth = edge_aware_smoothness(d / extent, self.smooth_guides[index], weights)
             loss = loss + s.smooth_weight * smooth
         return loss
 

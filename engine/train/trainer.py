@@ -35,6 +35,7 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -620,7 +621,18 @@ class Trainer:
         opt.step()
         opt.zero_grad(set_to_none=True)
         self.guard.after_step(it, opt, g, self.extent, before)
+        if cfg.opacity_decay < 1.0 and it < cfg.densify_until:
+            self._decay_opacity(cfg.opacity_decay)
         timer.tick("optimizer")
+
+    def _decay_opacity(self, factor: float) -> None:
+        """Scale every opacity by ``factor`` (on the logits, in place: Adam's moments stay)."""
+        with torch.no_grad():
+            x = self.gaussians.opacity_logits
+            # logit(f p) = log f + log p - log(1 - f p) and log p = x - softplus(x): finite
+            # for every float32 x (a plain logit of f * sigmoid(x) gives -inf once p underflows).
+            shift = math.log(factor) - torch.nn.functional.softplus(x)
+            x.add_(shift - torch.log1p(-factor * torch.sigmoid(x)))
 
     def _black_white(self, view: TrainView) -> Callable[[Gaussians], None] | None:
         """The DTU black/white rule for the densification step, when on."""
