@@ -245,9 +245,7 @@ class DepthRegularizer:
     def wants_fused_soft(self, iteration: int, view: TrainView) -> bool:
         """Whether the photometric render must provide ``opacity_depth`` for :meth:`soft_loss`
         this iteration (call after :meth:`step_pre_photometric`, which updates the gate)."""
-        return (
-            self.settings.soft_fused and self._due(iteration, view) and self._soft_due(iteration)
-        )
+        return self.settings.soft_fused and self._due(iteration, view) and self._soft_due(iteration)
 
     def soft_loss(
         self, opacity_depth: Tensor, view: TrainView, iteration: int, extent: float
