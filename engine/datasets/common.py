@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sparsesplat.api.scenes.formats import FORMAT_PRESETS
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import project, undistort_image
 from sparsesplat.engine.errors import SceneError
@@ -369,10 +370,6 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
                 f"position, the others about {typical:.3g}: a typo in its translation or a "
                 "different unit?"
             )
-
-
-FORMAT_PRESETS = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
-"""Formats with a paper protocol -> its preset."""
 
 
 def choose_preset(scene: Scene) -> tuple[str, str]:

@@ -21,6 +21,7 @@ from sparsesplat.api.cameras import (
     describe_validation_error,
     to_world_to_camera_opencv,
 )
+from sparsesplat.api.scenes.splits import evenly
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets.common import (
     BLACK,
@@ -148,7 +149,7 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     test_idx = [i for i, f in enumerate(frames) if f.split == Split.test]
     count = len(pool) if views is None else views
     check_view_count(count, len(pool), str(path))
-    train_idx = [pool[round(float(k))] for k in np.linspace(0, len(pool) - 1, count)]
+    train_idx = evenly(pool, count)
     cameras = {i: _frame_camera(root, frames[i], meta, str(path)) for i in train_idx + test_idx}
     train_cams = [cameras[i] for i in train_idx]
     train_names = [frames[i].image for i in train_idx]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-from sparsesplat.engine.camera_convert import distortion_from_transforms
+from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
 from sparsesplat.engine.datasets.common import (
     covisible_box,
@@ -16,7 +16,7 @@ from sparsesplat.engine.datasets.common import (
     recomposite,
 )
 from sparsesplat.engine.datasets.splits import llff_split
-from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.errors import SceneError, reraise_as
 from sparsesplat.engine.scene import Scene
 
 BLACK = (0.0, 0.0, 0.0)
@@ -36,10 +36,8 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
 
     def view(i: int):  # type: ignore[no-untyped-def]
         image_path = frame_image_path(root, frames[i], str(path))
-        try:
-            coeffs = distortion_from_transforms(meta, frames[i])
-        except CameraError as exc:
-            raise SceneError(f"{path}: {exc}") from exc
+        with reraise_as(SceneError):
+            coeffs = transforms_format.distortion(meta, frames[i], str(path))
         return load_view(
             image_path.stem, image_path, cameras[i], BLACK, downscale, distortion=coeffs
         )
