@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar, get_args
 from urllib.parse import urlencode
 
 import httpx
@@ -32,6 +32,7 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, ModelInfo, Record
+from sparsesplat.api.names import IMAGE_OUTPUT_SUFFIXES, TERMINAL_JOB_STATES, ExportFormat
 from sparsesplat.api.renders import RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
 from sparsesplat.client import cameras as cams
@@ -65,8 +66,6 @@ API_KEY_ENV = "SPARSESPLAT_API_KEY"
 
 T = TypeVar("T")
 ModelT = TypeVar("ModelT", bound=BaseModel)
-ExportFormat = Literal["ply", "splat", "checkpoint"]
-"""What :meth:`ModelHandle.export` downloads."""
 IdempotencyKey = str | Literal["auto"] | None
 """``"auto"``: a fresh random key per submission (retries reuse it); None: send none (and do
 not retry the submission)."""
@@ -74,14 +73,7 @@ EventCallback = Callable[[Event], Any]
 """Called with each event ``wait()`` sees."""
 
 _RECORDS = TypeAdapter(list[Record])
-_TERMINAL = {"succeeded", "failed", "cancelled"}
-_SUFFIX_OUTPUT: dict[str, RenderOutput] = {
-    ".png": "png",
-    ".jpg": "jpeg",
-    ".jpeg": "jpeg",
-    ".webp": "webp",
-    ".npy": "npy",
-}
+_SUFFIX_OUTPUT: dict[str, RenderOutput] = {**IMAGE_OUTPUT_SUFFIXES, ".npy": "npy"}
 
 
 @dataclass(frozen=True)
@@ -241,7 +233,7 @@ def _output_for(path: Path, output: RenderOutput | None) -> RenderOutput:
 
 
 def _terminal(event: Event) -> bool:
-    return event.type == "state" and event.data.get("state") in _TERMINAL
+    return event.type == "state" and event.data.get("state") in TERMINAL_JOB_STATES
 
 
 class _Base:
@@ -406,7 +398,7 @@ class _Base:
         return _Call("POST", f"/v1/models/{model_id}/render", _content, timeout, True, json=body)
 
     def _c_export(self, model_id: str, format: ExportFormat) -> _Call[bytes]:
-        if format not in ("ply", "splat", "checkpoint"):
+        if format not in get_args(ExportFormat):
             raise InvalidInput(f"export format {format!r}: use 'ply', 'splat' or 'checkpoint'")
         return _Call(
             "GET", f"/v1/models/{model_id}/export/{format}", _content, self.timeouts.download, True

@@ -19,14 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.names import VIDEO_SUFFIXES
 from sparsesplat.api.renders import RenderOutput
 from sparsesplat.client.commands.common import add_connection, client, guarded
 from sparsesplat.client.errors import InvalidInput, MissingExtra, exit_code
 
 LOCAL_COMMAND = "sparsesplat.engine.commands.render"
 """The engine's own render command, used for local checkpoints."""
-VIDEO_SUFFIXES = (".mp4", ".gif", ".webm", ".mov", ".mkv")
-"""Outputs written as a video of the camera path."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

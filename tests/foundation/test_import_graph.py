@@ -19,17 +19,26 @@ ALLOWED: dict[str, set[str]] = {
     "worker": {"worker", "api", "engine"},
     "engine": {"engine", "api"},
 }
-# The engine may import two light parts of api, each shared with the torch-free SDK so that
+# The engine may import three light parts of api, each shared with the torch-free SDK so that
 # one definition serves both: the pure-pydantic camera schemas (one schema validates
 # cameras.json and render cameras everywhere) and the scene-format readers (file layouts,
-# splits, pose conventions; the engine wraps them into torch Scenes). Settings, logging, job
-# and store modules stay out of the engine. Each entry covers the module or package and
-# everything below it.
-ENGINE_MAY_IMPORT_FROM_API = {"sparsesplat.api.cameras", "sparsesplat.api.scenes"}
+# splits, pose conventions; the engine wraps them into torch Scenes), and the shared names.
+# Settings, logging, job and store modules stay out of the engine. Each entry covers the
+# module or package and everything below it.
+ENGINE_MAY_IMPORT_FROM_API = {
+    "sparsesplat.api.cameras",
+    "sparsesplat.api.scenes",
+    "sparsesplat.api.names",
+}
 # What those api modules may import besides the standard library (NumPy only inside the
 # functions that need it: the base SDK install, which has no NumPy, reads the JSON formats),
-# and which of our modules.
-LIGHT_DEPENDENCIES = {"sparsesplat.api.cameras": {"pydantic"}, "sparsesplat.api.scenes": {"numpy"}}
+# and which of our modules. The shared names (job states, training choices, artifact files)
+# are plain literals: standard library only.
+LIGHT_DEPENDENCIES = {
+    "sparsesplat.api.cameras": {"pydantic"},
+    "sparsesplat.api.scenes": {"numpy"},
+    "sparsesplat.api.names": set(),
+}
 # Modules a package loads by name string (importlib.import_module / __import__) that cross the
 # layering on purpose: the ``sparsesplat render`` command renders a local checkpoint through
 # the engine's command when the engine extra is installed (MissingExtra otherwise).
