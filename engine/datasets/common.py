@@ -143,6 +143,19 @@ def default_background(views: Sequence[View], fallback: Sequence[float]) -> tupl
     return tuple(float(c) for c in fallback)
 
 
+def on_default_background(
+    train: list[View], test: list[View], loaded_on: tuple[float, float, float]
+) -> tuple[list[View], list[View], tuple[float, ...]]:
+    """Views loaded on ``loaded_on`` moved onto :func:`default_background` (only images with
+    alpha change), and that background."""
+    background = default_background(train + test, loaded_on)
+    if background != loaded_on:
+        old, new = torch.tensor(loaded_on), torch.tensor(background)
+        train = [recomposite(v, old, new) for v in train]
+        test = [recomposite(v, old, new) for v in test]
+    return train, test, background
+
+
 def background_reason(scene: Scene) -> str:
     """Why ``scene.background`` is what it is (one phrase, for ``scene info``)."""
     if scene.format == "blender":

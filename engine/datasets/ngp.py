@@ -10,10 +10,9 @@ from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
 from sparsesplat.engine.datasets.common import (
     covisible_box,
-    default_background,
     load_view,
     look_at_bounds,
-    recomposite,
+    on_default_background,
 )
 from sparsesplat.engine.datasets.splits import llff_split
 from sparsesplat.engine.errors import SceneError, reraise_as
@@ -45,14 +44,10 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     near, far = look_at_bounds(cameras)
     train_cams = [cameras[i] for i in train_idx]
     box = covisible_box(train_cams, [near] * len(train_cams), [far] * len(train_cams))
-    train = [view(i) for i in train_idx]
-    test = [view(i) for i in test_idx]
     # RGBA frames (nerfstudio/instant-ngp cut-outs) go on white, like every alpha capture.
-    background = default_background(train + test, BLACK)
-    if background != BLACK:
-        old, new = torch.tensor(BLACK), torch.tensor(background)
-        train = [recomposite(v, old, new) for v in train]
-        test = [recomposite(v, old, new) for v in test]
+    train, test, background = on_default_background(
+        [view(i) for i in train_idx], [view(i) for i in test_idx], BLACK
+    )
     return Scene(
         name=root.name,
         format="ngp",
