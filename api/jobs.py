@@ -12,18 +12,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-PresetName = Literal["llff", "dtu", "blender", "object", "default"]
-"""Training recipes (engine presets): ``llff`` forward-facing captures, ``dtu`` object on a
-dark background, ``blender`` synthetic object on white, ``object`` an object photographed with
-alpha (inward-looking cameras), ``default`` user uploads (LLFF recipe)."""
-
-ColorModelName = Literal["neural", "sh"]
-"""Colour model: DNGaussian's neural colour field, or plain spherical harmonics."""
-
-InitName = Literal["random", "dense"]
-"""Initial Gaussians: ``random`` points in a box around the cameras' view (the method's), or
-``dense`` points back-projected from the confident pixels of a plane-sweep depth of the
-uploaded views themselves."""
+from sparsesplat.api.names import TERMINAL_JOB_STATES, ColorModelName, InitName, PresetName
 
 
 class JobState(StrEnum):
@@ -43,7 +32,7 @@ class JobState(StrEnum):
     @property
     def terminal(self) -> bool:
         """Whether the job will not change state again."""
-        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+        return self.value in TERMINAL_JOB_STATES
 
 
 class JobSpec(BaseModel):

@@ -7,8 +7,9 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.names import ImageFormat
 
-RenderOutput = Literal["png", "jpeg", "webp", "depth16", "npy", "alpha"]
+RenderOutput = Literal[ImageFormat, "depth16", "npy", "alpha"]
 """``png``/``jpeg``/``webp``: the colour image; ``depth16``: view-space depth as a 16-bit PNG
 (millimetres of scene units: value / 1000 = depth, 0 = empty; see the ``X-Depth-Scale``
 header); ``npy``: float32 depth (H, W) as a NumPy file; ``alpha``: coverage as an 8-bit PNG."""

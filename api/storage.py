@@ -16,18 +16,9 @@ import shutil
 import uuid
 from pathlib import Path
 
-_JOB_ID = re.compile(r"^job_[0-9a-f]{20}$")
+from sparsesplat.api.names import ARTIFACT_FILES
 
-ARTIFACTS: dict[str, str] = {
-    "checkpoint": "checkpoint.pt",
-    "ply": "model.ply",
-    "splat": "model.splat",
-    "metrics": "metrics.json",
-    "series_json": "metrics_series.json",
-    "series_csv": "metrics_series.csv",
-    "series_png": "metrics_series.png",
-}
-"""Artifact kind → file name inside a job's run folder."""
+_JOB_ID = re.compile(r"^job_[0-9a-f]{20}$")
 
 
 class StorageError(ValueError):
@@ -58,10 +49,11 @@ class Storage:
         return self.job_dir(job_id) / "run"
 
     def artifact(self, job_id: str, kind: str) -> Path:
-        """Path of one artifact kind (see :data:`ARTIFACTS`); it may not exist yet."""
-        if kind not in ARTIFACTS:
-            raise StorageError(f"unknown artifact {kind!r}; one of {', '.join(ARTIFACTS)}")
-        return self.run_dir(job_id) / ARTIFACTS[kind]
+        """Path of one artifact kind (see :data:`~sparsesplat.api.names.ARTIFACT_FILES`); it
+        may not exist yet."""
+        if kind not in ARTIFACT_FILES:
+            raise StorageError(f"unknown artifact {kind!r}; one of {', '.join(ARTIFACT_FILES)}")
+        return self.run_dir(job_id) / ARTIFACT_FILES[kind]
 
     def prior_picture(self, job_id: str, index: int) -> Path:
         """The ``index``-th training view's depth prior drawn as an 8-bit PNG (near = bright)."""

@@ -1,8 +1,8 @@
 """What a job uploads, built from a dataset folder or from images plus cameras — without torch.
 
-:func:`read_scene` reads every format the engine reads and picks the paper's training views
-(the split indices are kept here as data, the same numbers as the engine's
-``engine/datasets/splits.py``; a test checks they agree):
+:func:`read_scene` reads every format the engine reads, through the same readers
+(:mod:`sparsesplat.api.scenes`: file layouts, the paper's splits, each format's cameras), and
+picks the paper's training views:
 
 - ``folder`` (``cameras.json``, the service's upload format): frames with split ``train``
   (default all of them), held out: split ``test``;
@@ -24,63 +24,45 @@ object-masked one.
 from __future__ import annotations
 
 import json
-import math
 import posixpath
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import ValidationError
 
 from sparsesplat.api.cameras import CamerasFile, PinholeCamera, describe_validation_error
+from sparsesplat.api.scenes import dtu, llff, transforms
+from sparsesplat.api.scenes.errors import SceneFormatError
+from sparsesplat.api.scenes.formats import (
+    FORMAT_PRESETS,
+    MARKERS,
+    PAPER_VIEWS,
+    SceneFormat,
+    check_format,
+    detect_format,
+    list_images,
+)
+from sparsesplat.api.scenes.splits import (
+    BLENDER_TEST_STRIDE,
+    BLENDER_TRAIN_ORDER,
+    DTU_TEST,
+    DTU_TRAIN_ORDER,
+    LLFF_HOLDOUT,
+    TestViews,
+    blender_split,
+    check_view_count,
+    dtu_split,
+    evenly,
+    llff_split,
+    pick_tests,
+)
 from sparsesplat.client import media
 from sparsesplat.client.errors import InvalidInput
 
-SceneFormat = Literal["folder", "llff", "blender", "dtu", "ngp"]
-"""Dataset formats :func:`read_scene` reads."""
-
-MARKERS: tuple[tuple[str, SceneFormat], ...] = (
-    ("cameras.json", "folder"),
-    ("poses_bounds.npy", "llff"),
-    ("transforms_train.json", "blender"),
-    ("cameras_sphere.npz", "dtu"),
-    ("transforms.json", "ngp"),
-)
-"""Marker file -> format, checked in this order (as the engine does)."""
-
-PAPER_VIEWS: dict[str, int] = {"llff": 3, "blender": 8, "dtu": 3, "ngp": 3}
-"""Training views by default: the paper's setting per format (an upload folder: all)."""
-
-PRESETS: dict[str, str] = {"llff": "llff", "blender": "blender", "dtu": "dtu"}
+PRESETS = FORMAT_PRESETS
 """The training preset a job from each format gets unless its spec names one."""
-
-LLFF_HOLDOUT = 8
-"""LLFF and instant-ngp: image i is held out when i % 8 == 0."""
-LLFF_IMAGE_DIRS = ("images_8", "images_4", "images_2", "images")
-"""LLFF image folders in the engine's order of preference (the paper's 8x first)."""
-DTU_TRAIN_ORDER = (25, 22, 28, 40, 44, 48, 0, 8, 13)
-"""DTU: the first n of these camera indices are the n training views."""
-DTU_TEST = (1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43,
-            45, 46, 47)  # fmt: skip
-"""DTU: the 25 held-out camera indices."""
-BLENDER_TRAIN_ORDER = (26, 86, 2, 55, 75, 93, 16, 73, 8)
-"""Blender: training frame indices of transforms_train.json (DietNeRF/FreeNeRF order)."""
-BLENDER_TEST_STRIDE = 8
-"""Blender: every 8th frame of transforms_test.json is held out."""
-UNIT_CUBE = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
-"""The [-1, 1] cube DTU's and NeRF-synthetic's objects lie in (the engine's loaders' init box)."""
-BLENDER_BOUNDS: dict[str, Any] = {"near": 2.0, "far": 6.0, "init_box": UNIT_CUBE}
-"""Blender: NeRF-synthetic's depth range and box (the engine's Blender loader sets the same)."""
-UNIT_SPHERE_RADIUS = 1.0
-"""DTU: NeuS's scale_mat maps the object into the sphere of this radius around the origin."""
-DTU_MIN_NEAR = 0.05
-"""DTU: the smallest near bound (a camera inside the sphere would otherwise give near <= 0)."""
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
-"""Files treated as images when a folder is listed (as the engine lists them)."""
-
-TestViews = int | Literal["all"]
-"""Held-out views to attach: ``"all"`` of the split's, a number (evenly spaced), or 0."""
 
 
 @dataclass
@@ -183,79 +165,7 @@ class Upload:
         return self
 
 
-# ---------------------------------------------------------------- splits (data, not engine)
-
-
-def _linspace_round(count: int, views: int) -> list[int]:
-    """``[round(k) for k in np.linspace(0, count - 1, views)]`` in pure Python (same floats:
-    NumPy computes ``i * step`` and sets the last value to the end point exactly)."""
-    if views == 1:
-        return [0]
-    step = (count - 1) / (views - 1)
-    values = [i * step for i in range(views)]
-    values[-1] = float(count - 1)
-    return [round(v) for v in values]
-
-
-def _check_views(views: int, available: int, source: str) -> None:
-    if views < 2:
-        raise InvalidInput(f"{source}: at least 2 training views are needed, got views={views}")
-    if views > available:
-        raise InvalidInput(f"{source}: {views} training views asked for, {available} available")
-
-
-def llff_split(count: int, views: int, source: str = "scene") -> tuple[list[int], list[int]]:
-    """(train, test) indices of ``count`` sorted images, LLFF protocol (as the engine)."""
-    test = [i for i in range(count) if i % LLFF_HOLDOUT == 0]
-    pool = [i for i in range(count) if i % LLFF_HOLDOUT != 0]
-    _check_views(views, len(pool), source)
-    return [pool[k] for k in _linspace_round(len(pool), views)], test
-
-
-def dtu_split(count: int, views: int, source: str = "scene") -> tuple[list[int], list[int]]:
-    """(train, test) camera indices of a DTU scan."""
-    _check_views(views, len(DTU_TRAIN_ORDER), source)
-    needed = max(*DTU_TRAIN_ORDER, *DTU_TEST)
-    if count <= needed:
-        raise InvalidInput(f"{source}: the DTU split needs {needed + 1} images, found {count}")
-    return list(DTU_TRAIN_ORDER[:views]), list(DTU_TEST)
-
-
-def blender_split(
-    train_count: int, test_count: int, views: int, source: str = "scene"
-) -> tuple[list[int], list[int]]:
-    """(train frame indices, test frame indices) of a NeRF-synthetic scene."""
-    _check_views(views, len(BLENDER_TRAIN_ORDER), source)
-    train = list(BLENDER_TRAIN_ORDER[:views])
-    if max(train) >= train_count:
-        raise InvalidInput(f"{source}: the split needs train frame {max(train)}, {train_count}")
-    return train, list(range(0, test_count, BLENDER_TEST_STRIDE))
-
-
-def _pick_tests(test: list[int], test_views: TestViews) -> list[int]:
-    if test_views == "all":
-        return test
-    if test_views < 0:
-        raise InvalidInput(f"test_views must be 'all' or >= 0, got {test_views}")
-    if test_views == 0 or not test:
-        return []
-    n = min(test_views, len(test))
-    return [test[k] for k in _linspace_round(len(test), n)]
-
-
 # ---------------------------------------------------------------- reading folders
-
-
-def detect_format(root: Path) -> SceneFormat:
-    """The format of a scene folder from its marker file."""
-    if not root.is_dir():
-        raise InvalidInput(f"{root}: scene folder not found")
-    for marker, fmt in MARKERS:
-        if (root / marker).is_file():
-            return fmt
-    raise InvalidInput(
-        f"{root}: unknown scene format (none of {', '.join(m for m, _ in MARKERS)} found)"
-    )
 
 
 def read_scene(
@@ -279,19 +189,20 @@ def read_scene(
         format: force a format instead of detecting it from the marker files.
     """
     root = Path(path)
-    fmt = format or detect_format(root)
     if not isinstance(downscale, int) or downscale < 1:
         raise InvalidInput(f"downscale must be an integer >= 1, got {downscale!r}")
-    reader = {
-        "folder": _read_folder,
-        "llff": _read_llff,
-        "blender": _read_blender,
-        "dtu": _read_dtu,
-        "ngp": _read_ngp,
-    }.get(fmt)
-    if reader is None:
-        raise InvalidInput(f"{root}: unknown format {fmt!r}; expected one of folder, llff, ...")
-    upload = reader(root, views, test_views)
+    try:
+        fmt = check_format(format, str(root)) if format else detect_format(root)
+        reader = {
+            "folder": _read_folder,
+            "llff": _read_llff,
+            "blender": _read_blender,
+            "dtu": _read_dtu,
+            "ngp": _read_ngp,
+        }[fmt]
+        upload = reader(root, views, test_views)
+    except SceneFormatError as exc:
+        raise InvalidInput(str(exc)) from exc
     upload.source = f"{root} ({fmt})"
     upload.preset = PRESETS.get(fmt)
     if downscale != 1:
@@ -348,9 +259,9 @@ def _read_folder(root: Path, views: int | None, test_views: TestViews) -> Upload
     pool = [i for i, f in enumerate(frames) if f.split == "train"]
     tests = [i for i, f in enumerate(frames) if f.split == "test"]
     count = len(pool) if views is None else views
-    _check_views(count, len(pool), str(path))
-    train = [pool[k] for k in _linspace_round(len(pool), count)]
-    chosen = train + _pick_tests(tests, test_views)
+    check_view_count(count, len(pool), str(path))
+    train = evenly(pool, count)
+    chosen = train + pick_tests(tests, test_views)
     images: dict[str, bytes] = {}
     depths: dict[str, bytes] = {}
     masks: dict[str, bytes] = {}
@@ -379,45 +290,27 @@ def _read_folder(root: Path, views: int | None, test_views: TestViews) -> Upload
     )
 
 
-def _list_images(folder: Path) -> list[Path]:
-    if not folder.is_dir():
-        raise InvalidInput(f"{folder}: image folder not found")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InvalidInput(f"{folder}: no image files")
-    return files
-
-
 def _numpy(what: str) -> Any:
     return media.require("numpy", what)
 
 
 def _read_llff(root: Path, views: int | None, test_views: TestViews) -> Upload:
-    np = _numpy("reading LLFF poses_bounds.npy")
+    _numpy("reading LLFF poses_bounds.npy")
     pb_path = root / "poses_bounds.npy"
-    try:
-        pb = np.load(pb_path, allow_pickle=False).astype(np.float64)
-    except (OSError, ValueError) as exc:
-        raise InvalidInput(f"{pb_path}: cannot read ({exc})") from exc
-    folder = next((root / d for d in LLFF_IMAGE_DIRS if (root / d).is_dir()), None)
-    if folder is None:
-        raise InvalidInput(f"{root}: no image folder (looked for {', '.join(LLFF_IMAGE_DIRS)})")
-    files = _list_images(folder)
-    if pb.ndim != 2 or pb.shape[1] != 17 or len(pb) != len(files):
-        raise InvalidInput(f"{pb_path}: shape {pb.shape} for {len(files)} images in {folder}")
+    pb = llff.read_poses_bounds(pb_path)
+    folder = llff.find_image_dir(root)
+    files = list_images(folder)
+    if len(pb) != len(files):
+        raise SceneFormatError(f"{pb_path}: {len(pb)} poses but {len(files)} images in {folder}")
     train, test = llff_split(len(files), views or PAPER_VIEWS["llff"], str(root))
-    chosen = train + _pick_tests(test, test_views)
+    chosen = train + pick_tests(test, test_views)
     images: dict[str, bytes] = {}
     frames = []
     for n, i in enumerate(chosen):
         data, name = _uploadable(_read(files[i]), files[i].name)
         width, height = media.image_size(data, name)
-        mat = pb[i, :15].reshape(3, 5)
-        h_full, w_full, focal = mat[:, 4]
-        down, right, back, centre = mat[:, 0], mat[:, 1], mat[:, 2], mat[:, 3]
-        c2w = np.eye(4)
-        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, -back, centre
-        k = (focal * width / w_full, focal * height / h_full, width / 2.0, height / 2.0)
+        k = llff.intrinsics(pb[i], width, height, f"{pb_path} row {i}")
+        c2w = llff.camera_to_world(pb[i, :15].reshape(3, 5)[:, :4])
         images[name] = data
         split = "train" if n < len(train) else "test"
         frames.append(_frame(name, c2w.tolist(), k, (width, height), split))
@@ -433,60 +326,9 @@ def _read_llff(root: Path, views: int | None, test_views: TestViews) -> Upload:
     return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
 
 
-def _transforms(path: Path) -> dict[str, Any]:
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InvalidInput(f"{path}: cannot parse JSON ({exc})") from exc
-    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
-        raise InvalidInput(f"{path}: no 'frames' list")
-    return meta
-
-
-def _frame_image(root: Path, frame: dict[str, Any], source: str) -> Path:
-    rel = frame.get("file_path")
-    if not isinstance(rel, str):
-        raise InvalidInput(f"{source}: frame without a 'file_path'")
-    path = (root / rel).resolve()
-    if path.suffix == "" or not path.is_file():
-        for suffix in (".png", ".jpg", ".jpeg"):
-            if path.with_name(path.name + suffix).is_file():
-                return path.with_name(path.name + suffix)
-    if not path.is_file():
-        raise InvalidInput(f"{source}: image {rel!r} not found under {root}")
-    return path
-
-
-def _intrinsics(
-    meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, source: str
-) -> tuple[float, float, float, float]:
-    """fx, fy, cx, cy of a transforms.json frame (per-frame keys override the header; fl_x in
-    pixels of w/h, rescaled to the image; else camera_angle_x), as the engine reads them."""
-
-    def get(key: str) -> Any:
-        return frame.get(key, meta.get(key))
-
-    sx, sy = width / float(get("w") or width), height / float(get("h") or height)
-    try:
-        if get("fl_x") is not None:
-            fx = float(get("fl_x")) * sx
-            fy = float(get("fl_y") if get("fl_y") is not None else get("fl_x")) * sy
-        elif get("camera_angle_x") is not None:
-            fx = 0.5 * width / math.tan(0.5 * float(get("camera_angle_x")))
-            angle_y = get("camera_angle_y")
-            fy = fx if angle_y is None else 0.5 * height / math.tan(0.5 * float(angle_y))
-        else:
-            raise InvalidInput(f"{source}: no focal length (fl_x or camera_angle_x)")
-        cx = float(get("cx")) * sx if get("cx") is not None else width / 2.0
-        cy = float(get("cy")) * sy if get("cy") is not None else height / 2.0
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"{source}: malformed intrinsics ({exc})") from exc
-    return fx, fy, cx, cy
-
-
 def _read_blender(root: Path, views: int | None, test_views: TestViews) -> Upload:
-    train_meta = _transforms(root / "transforms_train.json")
-    test_meta = _transforms(root / "transforms_test.json")
+    train_meta = transforms.read_transforms(root / "transforms_train.json")
+    test_meta = transforms.read_transforms(root / "transforms_test.json")
     train, test = blender_split(
         len(train_meta["frames"]),
         len(test_meta["frames"]),
@@ -494,24 +336,26 @@ def _read_blender(root: Path, views: int | None, test_views: TestViews) -> Uploa
         str(root),
     )
     chosen = [("train", train_meta, i) for i in train] + [
-        ("test", test_meta, i) for i in _pick_tests(test, test_views)
+        ("test", test_meta, i) for i in pick_tests(test, test_views)
     ]
     images: dict[str, bytes] = {}
     frames = []
     for split, meta, i in chosen:
         source = f"{root}/transforms_{split}.json frame {i}"
         frame = meta["frames"][i]
-        path = _frame_image(root, frame, source)
+        path = transforms.frame_image_path(root, frame, source)
         data, name = _uploadable(_read(path), f"{split}_{path.name}")
         width, height = media.image_size(data, name)
-        k = _intrinsics(meta, frame, width, height, source)
+        k = transforms.intrinsics(meta, frame, width, height, source)
         images[name] = data
         frames.append(_frame(name, frame.get("transform_matrix"), k, (width, height), split))
     document = {
         "convention": "opengl",
         "pose": "camera_to_world",
         "frames": frames,
-        **BLENDER_BOUNDS,
+        "near": transforms.BLENDER_NEAR,
+        "far": transforms.BLENDER_FAR,
+        "init_box": [list(corner) for corner in transforms.UNIT_CUBE],
     }
     tests = [i for s, _, i in chosen if s == "test"]
     return Upload(document, images, train_indices=train, test_indices=tests)
@@ -519,20 +363,20 @@ def _read_blender(root: Path, views: int | None, test_views: TestViews) -> Uploa
 
 def _read_ngp(root: Path, views: int | None, test_views: TestViews) -> Upload:
     path = root / "transforms.json"
-    meta = _transforms(path)
+    meta = transforms.read_transforms(path)
     frames_in = sorted(meta["frames"], key=lambda f: str(f.get("file_path")))
     train, test = llff_split(len(frames_in), views or PAPER_VIEWS["ngp"], str(root))
-    chosen = train + _pick_tests(test, test_views)
+    chosen = train + pick_tests(test, test_views)
     images: dict[str, bytes] = {}
     frames = []
     for n, i in enumerate(chosen):
         frame = frames_in[i]
         source = f"{path} {frame.get('file_path')}"
-        image_path = _frame_image(root, frame, source)
+        image_path = transforms.frame_image_path(root, frame, source)
         data, name = _uploadable(_read(image_path), image_path.name)
         width, height = media.image_size(data, name)
-        k = _intrinsics(meta, frame, width, height, source)
-        coeffs = _distortion(meta, frame, source)
+        k = transforms.intrinsics(meta, frame, width, height, source)
+        coeffs = transforms.distortion(meta, frame, source)
         if any(coeffs):
             data, name = _undistort(data, k, coeffs), posixpath.splitext(name)[0] + ".png"
         images[name] = data
@@ -542,21 +386,6 @@ def _read_ngp(root: Path, views: int | None, test_views: TestViews) -> Upload:
     return Upload(document, images, train_indices=train, test_indices=chosen[len(train) :])
 
 
-def _distortion(
-    meta: dict[str, Any], frame: dict[str, Any], source: str
-) -> tuple[float, float, float, float]:
-    out = []
-    for key in ("k1", "k2", "p1", "p2"):
-        value = frame.get(key, meta.get(key, 0.0))
-        try:
-            out.append(float(value or 0.0))
-        except (TypeError, ValueError) as exc:
-            raise InvalidInput(f"{source}: distortion {key}={value!r} is not a number") from exc
-    if not all(math.isfinite(v) for v in out):
-        raise InvalidInput(f"{source}: distortion coefficients {out} contain NaN or inf")
-    return out[0], out[1], out[2], out[3]
-
-
 def _undistort(
     data: bytes, k: tuple[float, float, float, float], coeffs: tuple[float, float, float, float]
 ) -> bytes:
@@ -564,15 +393,9 @@ def _undistort(
     pinhole image with the same intrinsics (bilinear, black outside), as the engine does."""
     np = _numpy("undistorting instant-ngp images (k1, k2, p1, p2)")
     image = np.asarray(media.decode_image(data).convert("RGB"), dtype=np.float32)
-    fx, fy, cx, cy = k
-    k1, k2, p1, p2 = coeffs
     h, w = image.shape[:2]
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
-    x, y = (u - cx) / fx, (v - cy) / fy
-    r2 = x * x + y * y
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    xs = (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)) * fx + cx - 0.5
-    ys = (y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y) * fy + cy - 0.5
+    xs, ys = transforms.distorted_pixels(w, h, k, coeffs)
+    xs, ys = xs - 0.5, ys - 0.5  # continuous coordinates -> pixel-centre indices
     x0, y0 = np.floor(xs).astype(np.int64), np.floor(ys).astype(np.int64)
     out = np.zeros_like(image)
     for dy in (0, 1):
@@ -585,40 +408,25 @@ def _undistort(
     return media.encode_png((np.clip(out, 0, 255) + 0.5).astype(np.uint8))
 
 
-def _rq(matrix: Any) -> tuple[Any, Any]:
-    """K @ R factorisation of a 3x3 (K upper-triangular, positive diagonal)."""
-    np = _numpy("reading DTU cameras_sphere.npz")
-    flip = np.flipud(np.eye(3))
-    q, r = np.linalg.qr((flip @ matrix).T)
-    k = flip @ r.T @ flip
-    rot = flip @ q.T
-    d = np.diag(np.sign(np.diag(k)))
-    return k @ d, d @ rot
-
-
 def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
     np = _numpy("reading DTU cameras_sphere.npz")
     npz_path = root / "cameras_sphere.npz"
-    folder = root / "images" if (root / "images").is_dir() else root / "image"
-    files = _list_images(folder)
-    try:
-        cams = dict(np.load(npz_path, allow_pickle=False))
-    except (OSError, ValueError) as exc:
-        raise InvalidInput(f"{npz_path}: cannot read ({exc})") from exc
+    cams = dtu.read_cameras(npz_path)
+    files = list_images(dtu.image_folder(root))
     train, test = dtu_split(len(files), views or PAPER_VIEWS["dtu"], str(root))
-    chosen = train + _pick_tests(test, test_views)
+    chosen = train + pick_tests(test, test_views)
     images: dict[str, bytes] = {}
     masks: dict[str, bytes] = {}
     frames = []
-    poses = {i: _neus_camera(cams, i, npz_path) for i in train + test}
+    poses = {
+        i: dtu.decompose_projection(dtu.projection(cams, i, str(npz_path)), f"{npz_path} {i}")
+        for i in train + test
+    }
     # The scene's depth range as the engine's DTU loader sets it: the unit sphere NeuS's
     # scale_mat maps the object into, seen from every camera of the split.
-    dists = [float(np.linalg.norm(_centre_of(w2c))) for _, w2c in poses.values()]
-    bounds = {
-        "near": max(DTU_MIN_NEAR, min(dists) - UNIT_SPHERE_RADIUS),
-        "far": max(dists) + UNIT_SPHERE_RADIUS,
-        "init_box": UNIT_CUBE,
-    }
+    dists = [float(np.linalg.norm(w2c[:3, :3].T @ w2c[:3, 3])) for _, w2c in poses.values()]
+    near, far = dtu.bounds(dists)
+    bounds = {"near": near, "far": far, "init_box": [list(c) for c in transforms.UNIT_CUBE]}
     for n, i in enumerate(chosen):
         k, w2c = poses[i]
         data, name = _uploadable(_read(files[i]), files[i].name)
@@ -627,47 +435,13 @@ def _read_dtu(root: Path, views: int | None, test_views: TestViews) -> Upload:
         split = "train" if n < len(train) else "test"
         intr = (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
         frames.append(_frame(name, w2c.tolist(), intr, (width, height), split))
-        mask = _dtu_mask(root, i, files[i]) if split == "test" else None
+        mask = dtu.mask_path(root, i, files[i]) if split == "test" else None
         if mask is not None:  # held-out frames are scored on the object, as in the paper
             masks[f"mask_{name}"], frames[-1]["mask"] = _read(mask), f"mask_{name}"
     document = {"convention": "opencv", "pose": "world_to_camera", "frames": frames, **bounds}
     return Upload(
         document, images, masks=masks, train_indices=train, test_indices=chosen[len(train) :]
     )
-
-
-def _neus_camera(cams: dict[str, Any], index: int, npz_path: Path) -> tuple[Any, Any]:
-    """Intrinsics (3x3) and OpenCV world-to-camera (4x4) of NeuS camera ``index``: its
-    projection ``world_mat @ scale_mat`` split by an RQ decomposition."""
-    np = _numpy("reading DTU cameras_sphere.npz")
-    keys = (f"world_mat_{index}", f"scale_mat_{index}")
-    if any(key not in cams for key in keys):
-        raise InvalidInput(f"{npz_path}: missing {' or '.join(keys)}")
-    p = (np.asarray(cams[keys[0]], np.float64) @ np.asarray(cams[keys[1]], np.float64))[:3]
-    k, rot = _rq(p[:, :3])
-    scale = k[2, 2]
-    k = k / scale
-    if np.linalg.det(rot) < 0:
-        rot, scale = -rot, -scale
-    t = np.linalg.solve(k, p[:, 3] / scale)
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = rot, t
-    return k, w2c
-
-
-def _centre_of(w2c: Any) -> Any:
-    """Camera centre of a world-to-camera matrix."""
-    return -w2c[:3, :3].T @ w2c[:3, 3]
-
-
-def _dtu_mask(root: Path, index: int, image: Path) -> Path | None:
-    """The object mask of DTU camera ``index`` (``mask/NNN.png`` as NeuS names it, or the
-    image's own name), or None when the folder has none."""
-    for folder in ("mask", "masks"):
-        for name in (f"{index:03d}.png", image.name):
-            if (root / folder / name).is_file():
-                return root / folder / name
-    return None
 
 
 def _downscale(upload: Upload, factor: int) -> None:
@@ -784,3 +558,23 @@ def _convert(cam: PinholeCamera, convention: Any, pose: Any) -> list[list[float]
     if PoseDirection(pose) == PoseDirection.world_to_camera:
         m = rigid_inverse(m)
     return m
+
+
+__all__ = [
+    "BLENDER_TEST_STRIDE",
+    "BLENDER_TRAIN_ORDER",
+    "DTU_TEST",
+    "DTU_TRAIN_ORDER",
+    "LLFF_HOLDOUT",
+    "MARKERS",
+    "PAPER_VIEWS",
+    "PRESETS",
+    "SceneFormat",
+    "TestViews",
+    "Upload",
+    "blender_split",
+    "dtu_split",
+    "from_images",
+    "llff_split",
+    "read_scene",
+]

@@ -9,9 +9,13 @@ Converters from other conventions live in ``engine.camera_convert``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
+
+if TYPE_CHECKING:
+    from sparsesplat.api.cameras import PinholeCamera
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,17 @@ class Camera:
         """Return the same camera with its pose on ``device`` (and ``dtype`` if given)."""
         pose = self.world_to_camera.to(device=device, dtype=dtype or self.world_to_camera.dtype)
         return Camera(pose, self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
+    @classmethod
+    def from_wire(cls, camera: PinholeCamera, downscale: int = 1) -> Camera:
+        """The engine camera of a wire camera (any convention and pose direction, converted to
+        world-to-camera OpenCV), for an image shrunk by the integer ``downscale``."""
+        w2c = torch.tensor(camera.world_to_camera_opencv(), dtype=torch.float64).float()
+        s = float(downscale)
+        return cls(
+            w2c, camera.fx / s, camera.fy / s, camera.cx / s, camera.cy / s,
+            max(1, camera.width // downscale), max(1, camera.height // downscale),
+        )  # fmt: skip
 
     def scaled(self, factor: float) -> Camera:
         """Return the camera for an image resized by ``factor`` (intrinsics scale, pose kept)."""

@@ -16,8 +16,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sparsesplat.api.scenes import dtu as dtu_format
+from sparsesplat.api.scenes import llff as llff_format
+from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.camera import Camera
-from sparsesplat.engine.errors import CameraError
+from sparsesplat.engine.errors import CameraError, reraise_as
 
 ROTATION_TOLERANCE = 1e-3
 """Max |R^T R - I| and |det R - 1| accepted as a rigid rotation (float32 files round at ~1e-7,
@@ -128,35 +131,16 @@ def cameras_from_llff(
     height, width = image_size
     cameras = []
     for i, row in enumerate(pb):
-        mat = row[:15].reshape(3, 5)
-        h_full, w_full, focal = mat[:, 4]
-        scale_y, scale_x = height / h_full, width / w_full
-        if abs(scale_x - scale_y) > 0.01 * max(scale_x, scale_y):
-            raise CameraError(
-                f"{source}: row {i} full-resolution size {w_full:.0f}x{h_full:.0f} does not have "
-                f"the aspect of the images ({width}x{height})"
-            )
-        cameras.append(
-            Camera(
-                w2c_from_llff(mat[:, :4], f"{source} row {i}"),
-                focal * scale_x,
-                focal * scale_y,
-                width / 2.0,
-                height / 2.0,
-                width,
-                height,
-            )
-        )
+        with reraise_as(CameraError):
+            fx, fy, cx, cy = llff_format.intrinsics(row, width, height, f"{source} row {i}")
+        w2c = w2c_from_llff(row[:15].reshape(3, 5)[:, :4], f"{source} row {i}")
+        cameras.append(Camera(w2c, fx, fy, cx, cy, width, height))
     return cameras, pb[:, 15:17].copy()
 
 
 def w2c_from_llff(pose34: Any, source: str = "poses_bounds.npy") -> Tensor:
     """LLFF 3x4 [down, right, back | centre] camera-to-world -> internal world-to-camera."""
-    m = as_matrix(pose34, (3, 4), source)
-    down, right, back, centre = m[:, 0], m[:, 1], m[:, 2], m[:, 3]
-    c2w = np.eye(4)
-    # OpenCV axes: x = right, y = down, z = forward = -back.
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, -back, centre
+    c2w = llff_format.camera_to_world(as_matrix(pose34, (3, 4), source))
     check_rotation(c2w[:3, :3], source)
     return torch.from_numpy(rigid_inverse(c2w)).float()
 
@@ -172,16 +156,7 @@ def llff_from_w2c(w2c: Tensor) -> np.ndarray:
 # ---------------------------------------------------------------- NeuS / IDR cameras_sphere
 
 
-def rq_decomposition(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Factor a 3x3 matrix as K @ R with K upper-triangular (positive diagonal) and R
-    orthonormal, via QR of the row-reversed transpose (no OpenCV needed)."""
-    flip = np.flipud(np.eye(3))
-    q, r = np.linalg.qr((flip @ matrix).T)
-    k = flip @ r.T @ flip
-    rot = flip @ q.T
-    # Make K's diagonal positive; D = diag(sign) satisfies D @ D = I.
-    d = np.diag(np.sign(np.diag(k)))
-    return k @ d, d @ rot
+rq_decomposition = dtu_format.rq_decomposition
 
 
 def camera_from_projection(
@@ -192,19 +167,9 @@ def camera_from_projection(
     if p.shape == (4, 4):
         p = p[:3]
     p = as_matrix(p, (3, 4), source)
-    k, rot = rq_decomposition(p[:, :3])
-    if abs(k[2, 2]) < 1e-12:
-        raise CameraError(f"{source}: projection matrix is degenerate (K[2,2] = 0)")
-    scale = k[2, 2]
-    k = k / scale
-    if np.linalg.det(rot) < 0:  # P and -P are the same projection; choose the proper rotation
-        rot, scale = -rot, -scale
-    t = np.linalg.solve(k, p[:, 3] / scale)
-    check_rotation(rot, source)
-    if abs(k[0, 1]) > 1e-3 * abs(k[0, 0]):
-        raise CameraError(f"{source}: projection has skew {k[0, 1]:.3g}, which is not supported")
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = rot, t
+    with reraise_as(CameraError):
+        k, w2c = dtu_format.decompose_projection(p, source)
+    check_rotation(w2c[:3, :3], source)
     return Camera(
         torch.from_numpy(w2c).float(),
         float(k[0, 0]),
@@ -240,47 +205,10 @@ def neus_from_camera(camera: Camera, scale_mat: np.ndarray) -> np.ndarray:
 def intrinsics_from_transforms(
     meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, source: str
 ) -> tuple[float, float, float, float]:
-    """fx, fy, cx, cy for one frame of a NeRF/instant-ngp/nerfstudio ``transforms.json``.
-
-    Per-frame keys override the top-level ones. ``fl_x/fl_y/cx/cy`` are in pixels of the stored
-    size ``w/h``; when the actual image size differs they are rescaled. Without ``fl_x``, the
-    focal comes from ``camera_angle_x`` (NeRF-synthetic), and cx, cy default to the centre.
-    """
-
-    def get(key: str) -> Any:
-        return frame.get(key, meta.get(key))
-
-    w_ref = float(get("w") or width)
-    h_ref = float(get("h") or height)
-    sx, sy = width / w_ref, height / h_ref
-    try:
-        if get("fl_x") is not None:
-            fx = float(get("fl_x")) * sx
-            fy = float(get("fl_y") if get("fl_y") is not None else get("fl_x")) * sy
-        elif get("camera_angle_x") is not None:
-            fx = 0.5 * width / np.tan(0.5 * float(get("camera_angle_x")))
-            fy = (
-                0.5 * height / np.tan(0.5 * float(get("camera_angle_y")))
-                if get("camera_angle_y") is not None
-                else fx
-            )
-        else:
-            raise CameraError(f"{source}: no focal length (fl_x or camera_angle_x)")
-        cx = float(get("cx")) * sx if get("cx") is not None else width / 2.0
-        cy = float(get("cy")) * sy if get("cy") is not None else height / 2.0
-    except (TypeError, ValueError) as exc:
-        raise CameraError(f"{source}: malformed intrinsics ({exc})") from exc
-    values = np.array([fx, fy, cx, cy])
-    if not np.all(np.isfinite(values)) or fx <= 0 or fy <= 0:
-        raise CameraError(f"{source}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}")
-    return fx, fy, cx, cy
-
-
-def check_intrinsics(fx: float, fy: float, cx: float, cy: float, source: str) -> None:
-    """Raise CameraError unless the focal lengths are finite and positive, cx/cy finite."""
-    values = np.array([fx, fy, cx, cy], dtype=np.float64)
-    if not np.all(np.isfinite(values)) or fx <= 0 or fy <= 0:
-        raise CameraError(f"{source}: invalid intrinsics fx={fx} fy={fy} cx={cx} cy={cy}")
+    """fx, fy, cx, cy for one frame of a NeRF/instant-ngp/nerfstudio ``transforms.json``
+    (:func:`sparsesplat.api.scenes.transforms.intrinsics`; CameraError when malformed)."""
+    with reraise_as(CameraError):
+        return transforms_format.intrinsics(meta, frame, width, height, source)
 
 
 def project(camera: Camera, points: Tensor) -> tuple[Tensor, Tensor]:
@@ -298,16 +226,8 @@ def project(camera: Camera, points: Tensor) -> tuple[Tensor, Tensor]:
 
 def distortion_from_transforms(meta: dict[str, Any], frame: dict[str, Any]) -> tuple[float, ...]:
     """OpenCV (k1, k2, p1, p2) from a transforms.json frame / header (zeros when absent)."""
-    out = []
-    for key in ("k1", "k2", "p1", "p2"):
-        value = frame.get(key, meta.get(key, 0.0))
-        try:
-            out.append(float(value or 0.0))
-        except (TypeError, ValueError) as exc:
-            raise CameraError(f"distortion {key}={value!r} is not a number") from exc
-    if not np.all(np.isfinite(out)):
-        raise CameraError(f"distortion coefficients {out} contain NaN or inf")
-    return tuple(out)
+    with reraise_as(CameraError):
+        return transforms_format.distortion(meta, frame, "transforms.json")
 
 
 def undistort_image(
@@ -318,19 +238,14 @@ def undistort_image(
 
     Each output pixel's normalised ray is pushed through the distortion model to find where
     the lens imaged it; the input is sampled there bilinearly (outside = 0)."""
-    k1, k2, p1, p2 = coeffs
     if not any(coeffs):
         return image
     import torch.nn.functional as F
 
     h, w = image.shape[:2]
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
-    x, y = (u - cx) / fx, (v - cy) / fy
-    r2 = x * x + y * y
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    grid = np.stack([(xd * fx + cx) / w * 2 - 1, (yd * fy + cy) / h * 2 - 1], axis=-1)
+    k1, k2, p1, p2 = coeffs
+    xs, ys = transforms_format.distorted_pixels(w, h, (fx, fy, cx, cy), (k1, k2, p1, p2))
+    grid = np.stack([xs / w * 2 - 1, ys / h * 2 - 1], axis=-1)
     src = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]
     out = F.grid_sample(
         src, torch.from_numpy(grid).float()[None], mode="bilinear", align_corners=False

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from sparsesplat.api.scenes.errors import SceneFormatError
+
 
 class EngineError(Exception):
     """Base class for every error the engine raises on purpose."""
@@ -29,3 +34,13 @@ class TrainingDiverged(EngineError, FloatingPointError):
 
 class ExportError(EngineError, ValueError):
     """Gaussians cannot be exported or a file cannot be read back: bad shapes, bad headers."""
+
+
+@contextmanager
+def reraise_as(kind: type[EngineError]) -> Iterator[None]:
+    """Re-raise the shared scene readers' :class:`SceneFormatError` as the engine's ``kind``
+    (same message); usable as ``with`` block or as a function decorator."""
+    try:
+        yield
+    except SceneFormatError as exc:
+        raise kind(str(exc)) from exc

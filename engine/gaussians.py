@@ -23,14 +23,6 @@ BASE_PARAMS = ("means", "log_scales", "quats", "opacity_logits")
 """Names of the geometric per-Gaussian parameters every model has."""
 
 
-def random_points_in_box(
-    box_min: Tensor, box_max: Tensor, n: int, generator: torch.Generator
-) -> Tensor:
-    """Return ``n`` points uniform in the axis-aligned box [box_min, box_max] as (n, 3) float32."""
-    u = torch.rand(n, 3, generator=generator, dtype=torch.float32)
-    return box_min.float() + u * (box_max.float() - box_min.float())
-
-
 def knn_log_scales(means: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
     """Isotropic initial log-scales: log sqrt(mean squared distance to the ``k`` nearest
     neighbours), squared distance clamped at 1e-7 as simple-knn's ``distCUDA2`` does.

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from sparsesplat.engine.errors import SceneError
+from sparsesplat.api.scenes import formats as scene_formats
+from sparsesplat.engine.errors import SceneError, reraise_as
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+IMAGE_SUFFIXES = scene_formats.IMAGE_SUFFIXES
 """File suffixes treated as images when a folder is listed (case-insensitive)."""
 
 
@@ -141,20 +142,5 @@ def to_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
 
-def write_rgb(path: str | Path, image: np.ndarray) -> Path:
-    """Write an (H, W, 3) float image in [0, 1] as an 8-bit file (format from the suffix)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(to_uint8(np.asarray(image))).save(path)
-    return path
-
-
-def list_images(folder: str | Path) -> list[Path]:
-    """Image files directly in ``folder``, sorted by name (raises SceneError if none)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise SceneError(f"{folder}: image folder not found")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise SceneError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)})")
-    return files
+list_images = reraise_as(SceneError)(scene_formats.list_images)
+"""Image files directly in a folder, sorted by name (SceneError if missing or empty)."""

@@ -147,8 +147,3 @@ def format_table(records: Sequence[dict[str, Any]], columns: Sequence[str] | Non
     lines.append("  ".join("-" * w for w in widths))
     lines += ["  ".join(v.rjust(w) for v, w in zip(row, widths, strict=True)) for row in cells]
     return "\n".join(lines)
-
-
-def print_table(records: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> None:
-    """Print :func:`format_table` to stdout."""
-    print(format_table(records, columns))

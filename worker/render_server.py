@@ -65,20 +65,6 @@ class ModelCache:
         return len(self._models)
 
 
-def engine_camera(camera: PinholeCamera, downscale: int = 1) -> Any:
-    """The engine's Camera for a wire camera (converted to world-to-camera, OpenCV axes)."""
-    import torch
-
-    from sparsesplat.engine.camera import Camera
-
-    w2c = torch.tensor(camera.world_to_camera_opencv(), dtype=torch.float64).float()
-    s = float(downscale)
-    return Camera(
-        w2c, camera.fx / s, camera.fy / s, camera.cx / s, camera.cy / s,
-        max(1, camera.width // downscale), max(1, camera.height // downscale),
-    )  # fmt: skip
-
-
 class Renderer:
     """Renders requests against the model cache."""
 
@@ -109,7 +95,9 @@ class Renderer:
         return buffer.getvalue(), MEDIA_TYPES["zip"], headers
 
     def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
-        out = model.render(engine_camera(camera, request.downscale))
+        from sparsesplat.engine.camera import Camera
+
+        out = model.render(Camera.from_wire(camera, request.downscale))
         image = out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy()
         depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
         return encode(request.output, image, depth, alpha, request.quality)

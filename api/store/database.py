@@ -12,10 +12,6 @@ _MIGRATION_LOCK = 7_274_310
 """PostgreSQL advisory-lock key held while migrating (several processes may start at once)."""
 
 
-class DatabaseUnavailable(RuntimeError):
-    """The job database cannot be reached; the message names the URL (without password)."""
-
-
 def _normalise_url(url: str) -> str:
     # Users write postgresql://…; SQLAlchemy's default driver for that is psycopg2, which we do
     # not install. psycopg (3) is the maintained one.

@@ -28,11 +28,12 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
 
-from sparsesplat.client.errors import APIError, SparsesplatError, exit_code
+from sparsesplat.client.errors import APIError, InvalidInput, SparsesplatError, exit_code
 from sparsesplat.client.sdk import Client, Timeouts
 
 
@@ -48,6 +49,22 @@ def add_connection(parser: argparse.ArgumentParser, json_flag: bool = True) -> N
         parser.add_argument(
             "--json", action="store_true", help="print machine-readable JSON on stdout"
         )
+
+
+def json_argument(value: str, option: str, inline: tuple[str, ...]) -> Any:
+    """The JSON an option gives: ``value`` itself when it starts with one of ``inline`` (e.g.
+    ``{``), else the file it names; InvalidInput naming ``option`` when unreadable or not
+    JSON."""
+    text = value.strip()
+    if not text.startswith(inline):
+        try:
+            text = Path(value).read_text()
+        except OSError as exc:
+            raise InvalidInput(f"{option} {value}: cannot read ({exc})") from exc
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(f"{option}: not valid JSON ({exc})") from exc
 
 
 def client(args: argparse.Namespace) -> Client:

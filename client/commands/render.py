@@ -19,14 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.names import VIDEO_SUFFIXES
 from sparsesplat.api.renders import RenderOutput
-from sparsesplat.client.commands.common import add_connection, client, guarded
+from sparsesplat.client.commands.common import add_connection, client, guarded, json_argument
 from sparsesplat.client.errors import InvalidInput, MissingExtra, exit_code
 
 LOCAL_COMMAND = "sparsesplat.engine.commands.render"
 """The engine's own render command, used for local checkpoints."""
-VIDEO_SUFFIXES = (".mp4", ".gif", ".webm", ".mov", ".mkv")
-"""Outputs written as a video of the camera path."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,16 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _cameras(args: argparse.Namespace, model: Any) -> list[PinholeCamera | dict[str, Any]]:
     if args.camera:
-        text = args.camera.strip()
-        if not text.startswith(("{", "[")):
-            try:
-                text = Path(args.camera).read_text()
-            except OSError as exc:
-                raise InvalidInput(f"--camera {args.camera}: cannot read ({exc})") from exc
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InvalidInput(f"--camera: not valid JSON ({exc})") from exc
+        data = json_argument(args.camera, "--camera", ("{", "["))
         if isinstance(data, dict) and isinstance(data.get("path"), list):
             data = data["path"]
         items: list[Any] = data if isinstance(data, list) else [data]

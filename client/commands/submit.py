@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 from sparsesplat.api.jobs import PresetName
-from sparsesplat.client.commands.common import add_connection, client, dump, guarded
+from sparsesplat.client.commands.common import add_connection, client, dump, guarded, json_argument
 from sparsesplat.client.errors import InvalidInput, JobFailed
 from sparsesplat.client.scenes import Upload, read_scene
 
@@ -48,16 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _spec(args: argparse.Namespace) -> dict[str, Any]:
     spec: dict[str, Any] = {}
     if args.spec:
-        text = args.spec.strip()
-        if not text.startswith("{"):
-            try:
-                text = Path(args.spec).read_text()
-            except OSError as exc:
-                raise InvalidInput(f"--spec {args.spec}: cannot read ({exc})") from exc
-        try:
-            spec = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InvalidInput(f"--spec: not valid JSON ({exc})") from exc
+        spec = json_argument(args.spec, "--spec", ("{",))
     for key, value in (
         ("iterations", args.iterations),
         ("time_budget_s", args.time_budget),

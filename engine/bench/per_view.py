@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.api.names import ARTIFACT_FILES
 from sparsesplat.engine.bench.common import write_results
 
 PSNR_KEY = "psnr"
@@ -47,12 +48,12 @@ def nearest_training_angles(scene: Any) -> dict[str, float]:
 def view_psnr_of_run(out_dir: Path, scene: Any) -> dict[str, float]:
     """Per held-out view PSNR of one bench-quality run: from its ``metrics.json`` when the
     trainer wrote ``views`` there, else by rendering its checkpoint (same evaluator)."""
-    metrics_path = out_dir / "metrics.json"
+    metrics_path = out_dir / ARTIFACT_FILES["metrics"]
     if metrics_path.is_file():
         views = json.loads(metrics_path.read_text()).get("views")
         if views:
             return {name: float(scores[PSNR_KEY]) for name, scores in views.items()}
-    checkpoint = out_dir / "checkpoint.pt"
+    checkpoint = out_dir / ARTIFACT_FILES["checkpoint"]
     if not checkpoint.is_file():
         raise SystemExit(f"bench-per-view: {out_dir}: neither per-view metrics nor a checkpoint")
     import torch

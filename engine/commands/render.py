@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.api.names import IMAGE_OUTPUT_SUFFIXES
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -21,7 +22,7 @@ from sparsesplat.engine.commands.common import (
     prepare_native,
 )
 
-IMAGE_SUFFIXES = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".webp": "WEBP"}
+IMAGE_SUFFIXES = {suffix: fmt.upper() for suffix, fmt in IMAGE_OUTPUT_SUFFIXES.items()}
 """Output suffix -> PIL format."""
 MAX_RENDER_SIDE = 8192
 """Largest width or height a render may have (memory guard)."""
@@ -93,16 +94,6 @@ def read_camera_spec(spec: str) -> Any:
     return camera
 
 
-def engine_camera(camera: Any) -> Any:
-    """:class:`PinholeCamera` -> the engine's :class:`Camera` (world-to-camera, OpenCV)."""
-    import torch
-
-    from sparsesplat.engine.camera import Camera
-
-    w2c = torch.tensor(camera.world_to_camera_opencv(), dtype=torch.float64).float()
-    return Camera(w2c, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
-
-
 def _output_path(value: str, suffixes: dict[str, str], what: str) -> Path:
     path = Path(value)
     if path.suffix.lower() not in suffixes:
@@ -143,7 +134,9 @@ def _run(args: argparse.Namespace) -> int:
     device = check_device(args.device)
     prepare_native(device)
     model = load_model(args.checkpoint, device)
-    out = model.render(engine_camera(camera))
+    from sparsesplat.engine.camera import Camera
+
+    out = model.render(Camera.from_wire(camera))
     coverage = float(out.alpha.mean())
     if coverage < EMPTY_RENDER_COVERAGE:
         print(

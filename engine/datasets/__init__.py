@@ -9,42 +9,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sparsesplat.api.scenes import formats as scene_formats
+from sparsesplat.api.scenes.formats import FORMATS, MARKERS, PAPER_VIEWS
 from sparsesplat.engine.datasets.blender import load_blender
 from sparsesplat.engine.datasets.common import check_downscale
 from sparsesplat.engine.datasets.dtu import load_dtu
 from sparsesplat.engine.datasets.folder import load_folder
 from sparsesplat.engine.datasets.llff import load_llff
 from sparsesplat.engine.datasets.ngp import load_ngp
-from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.errors import SceneError, reraise_as
 from sparsesplat.engine.scene import Scene
 
-FORMATS = ("llff", "blender", "dtu", "ngp", "folder")
-"""Format names accepted by :func:`load_scene`."""
-
-MARKERS = (
-    ("cameras.json", "folder"),
-    ("poses_bounds.npy", "llff"),
-    ("transforms_train.json", "blender"),
-    ("cameras_sphere.npz", "dtu"),
-    ("transforms.json", "ngp"),
-)
-"""Marker file -> format, checked in this order."""
-
-PAPER_VIEWS = {"llff": 3, "blender": 8, "dtu": 3, "ngp": 3}
-"""Training views when ``views`` is None: the paper's setting per format (folder: all)."""
-
-
-def detect_format(path: str | Path) -> str:
-    """The format of the scene folder ``path``, from its marker file."""
-    root = Path(path)
-    if not root.is_dir():
-        raise SceneError(f"{root}: scene folder not found")
-    for marker, fmt in MARKERS:
-        if (root / marker).is_file():
-            return fmt
-    raise SceneError(
-        f"{root}: unknown scene format (none of {', '.join(m for m, _ in MARKERS)} found)"
-    )
+detect_format = reraise_as(SceneError)(scene_formats.detect_format)
+"""The format of a scene folder, from its marker file (SceneError when none matches)."""
 
 
 def load_scene(
@@ -64,9 +41,8 @@ def load_scene(
             which is the paper's resolution for every scene in shared/data).
     """
     root = Path(path)
-    fmt = format or detect_format(root)
-    if fmt not in FORMATS:
-        raise SceneError(f"{root}: unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    with reraise_as(SceneError):
+        fmt = scene_formats.check_format(format, str(root)) if format else detect_format(root)
     if not root.is_dir():
         raise SceneError(f"{root}: scene folder not found")
     downscale = check_downscale(downscale, str(root))
@@ -81,7 +57,7 @@ def source_image_count(path: str | Path, format: str | None = None) -> int:
     """How many posed images the scene folder holds in all (before the split)."""
     import json
 
-    from sparsesplat.engine.datasets.dtu import image_folder
+    from sparsesplat.api.scenes.dtu import image_folder
     from sparsesplat.engine.datasets.llff import find_image_dir
     from sparsesplat.engine.images import list_images
 
@@ -104,4 +80,11 @@ def source_image_count(path: str | Path, format: str | None = None) -> int:
         raise SceneError(f"{root}: cannot count images ({exc})") from exc
 
 
-__all__ = ["FORMATS", "detect_format", "load_scene", "source_image_count"]
+__all__ = [
+    "FORMATS",
+    "MARKERS",
+    "PAPER_VIEWS",
+    "detect_format",
+    "load_scene",
+    "source_image_count",
+]

@@ -2,51 +2,25 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import camera_from_transforms_frame
 from sparsesplat.engine.datasets.common import load_view
 from sparsesplat.engine.datasets.splits import blender_split
-from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.errors import CameraError, SceneError, reraise_as
 from sparsesplat.engine.images import image_size
 from sparsesplat.engine.scene import Scene, View
 
 WHITE = (1.0, 1.0, 1.0)
-BLENDER_NEAR, BLENDER_FAR = 2.0, 6.0
-"""The NeRF-synthetic near/far convention."""
 
 
-def read_transforms(path: Path) -> dict[str, Any]:
-    """Parse a transforms JSON; missing or malformed files raise SceneError naming ``path``."""
-    if not path.is_file():
-        raise SceneError(f"{path}: file not found")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise SceneError(f"{path}: cannot parse JSON ({exc})") from exc
-    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
-        raise SceneError(f"{path}: no 'frames' list")
-    return meta
-
-
-def frame_image_path(root: Path, frame: dict[str, Any], source: str) -> Path:
-    """Resolve a frame's ``file_path`` (NeRF omits the .png suffix)."""
-    rel = frame.get("file_path")
-    if not isinstance(rel, str):
-        raise SceneError(f"{source}: frame without a 'file_path'")
-    path = (root / rel).resolve()
-    if path.suffix == "" or not path.is_file():
-        for suffix in (".png", ".jpg", ".jpeg"):
-            if path.with_name(path.name + suffix).is_file():
-                return path.with_name(path.name + suffix)
-    if not path.is_file():
-        raise SceneError(f"{source}: image {rel!r} not found under {root}")
-    return path
+read_transforms = reraise_as(SceneError)(transforms_format.read_transforms)
+frame_image_path = reraise_as(SceneError)(transforms_format.frame_image_path)
 
 
 def frame_camera(root: Path, meta: dict[str, Any], frame: dict[str, Any], source: str) -> Camera:
@@ -92,9 +66,9 @@ def load_blender(root: Path, views: int, downscale: int = 1) -> Scene:
         train=train,
         test=test,
         background=torch.tensor(WHITE),
-        near=BLENDER_NEAR,
-        far=BLENDER_FAR,
-        init_box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
+        near=transforms_format.BLENDER_NEAR,
+        far=transforms_format.BLENDER_FAR,
+        init_box=transforms_format.UNIT_CUBE,
         train_indices=train_idx,
         test_indices=test_idx,
     )

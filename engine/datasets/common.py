@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sparsesplat.api.scenes.formats import FORMAT_PRESETS
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import project, undistort_image
 from sparsesplat.engine.errors import SceneError
@@ -140,6 +141,19 @@ def default_background(views: Sequence[View], fallback: Sequence[float]) -> tupl
     if plain is not None:
         return plain
     return tuple(float(c) for c in fallback)
+
+
+def on_default_background(
+    train: list[View], test: list[View], loaded_on: tuple[float, float, float]
+) -> tuple[list[View], list[View], tuple[float, ...]]:
+    """Views loaded on ``loaded_on`` moved onto :func:`default_background` (only images with
+    alpha change), and that background."""
+    background = default_background(train + test, loaded_on)
+    if background != loaded_on:
+        old, new = torch.tensor(loaded_on), torch.tensor(background)
+        train = [recomposite(v, old, new) for v in train]
+        test = [recomposite(v, old, new) for v in test]
+    return train, test, background
 
 
 def background_reason(scene: Scene) -> str:
@@ -369,10 +383,6 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
                 f"position, the others about {typical:.3g}: a typo in its translation or a "
                 "different unit?"
             )
-
-
-FORMAT_PRESETS = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
-"""Formats with a paper protocol -> its preset."""
 
 
 def choose_preset(scene: Scene) -> tuple[str, str]:

@@ -21,6 +21,7 @@ from sparsesplat.api.cameras import (
     describe_validation_error,
     to_world_to_camera_opencv,
 )
+from sparsesplat.api.scenes.splits import evenly
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets.common import (
     BLACK,
@@ -28,10 +29,9 @@ from sparsesplat.engine.datasets.common import (
     check_image_size,
     check_overlap,
     covisible_box,
-    default_background,
     load_view,
     look_at_bounds,
-    recomposite,
+    on_default_background,
 )
 from sparsesplat.engine.datasets.splits import check_view_count
 from sparsesplat.engine.errors import SceneError
@@ -148,7 +148,7 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     test_idx = [i for i, f in enumerate(frames) if f.split == Split.test]
     count = len(pool) if views is None else views
     check_view_count(count, len(pool), str(path))
-    train_idx = [pool[round(float(k))] for k in np.linspace(0, len(pool) - 1, count)]
+    train_idx = evenly(pool, count)
     cameras = {i: _frame_camera(root, frames[i], meta, str(path)) for i in train_idx + test_idx}
     train_cams = [cameras[i] for i in train_idx]
     train_names = [frames[i].image for i in train_idx]
@@ -174,13 +174,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             depth_source=depth_path,
         )
 
-    train = [view(i, BLACK) for i in train_idx]
-    test = [view(i, BLACK) for i in test_idx]
-    background = default_background(train + test, BLACK)
-    if background != BLACK:
-        old, new = torch.tensor(BLACK), torch.tensor(background)
-        train = [recomposite(v, old, new) for v in train]
-        test = [recomposite(v, old, new) for v in test]
+    train, test, background = on_default_background(
+        [view(i, BLACK) for i in train_idx], [view(i, BLACK) for i in test_idx], BLACK
+    )
     near, far = _scene_bounds(meta, [frames[i] for i in all_idx], train, train_cams, str(path))
     train_near, train_far = _view_bounds([frames[i] for i in train_idx], near, far, str(path))
     alone = check_overlap(train_cams, train_names, near, far, str(path))

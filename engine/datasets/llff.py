@@ -4,38 +4,26 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import torch
 
+from sparsesplat.api.scenes import llff as llff_format
 from sparsesplat.engine.camera_convert import cameras_from_llff
 from sparsesplat.engine.camera_path import spiral_cameras
 from sparsesplat.engine.datasets.common import covisible_box, load_view
 from sparsesplat.engine.datasets.splits import llff_split
-from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.errors import CameraError, SceneError, reraise_as
 from sparsesplat.engine.images import image_size, list_images
 from sparsesplat.engine.scene import Scene
 
-IMAGE_DIRS = ("images_8", "images_4", "images_2", "images")
-"""Image folders in order of preference: the paper's 8x first, full resolution last."""
-
-
-def find_image_dir(root: Path) -> Path:
-    """The first existing folder of :data:`IMAGE_DIRS` under ``root``."""
-    for name in IMAGE_DIRS:
-        if (root / name).is_dir():
-            return root / name
-    raise SceneError(f"{root}: no image folder (looked for {', '.join(IMAGE_DIRS)})")
+IMAGE_DIRS = llff_format.IMAGE_DIRS
+find_image_dir = reraise_as(SceneError)(llff_format.find_image_dir)
 
 
 def load_llff(root: Path, views: int, downscale: int = 1) -> Scene:
     """Load an LLFF scene with the RegNeRF/DNGaussian split; poses stay in COLMAP units."""
     pb_path = root / "poses_bounds.npy"
-    if not pb_path.is_file():
-        raise SceneError(f"{pb_path}: file not found")
-    try:
-        pb = np.load(pb_path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise SceneError(f"{pb_path}: cannot read ({exc})") from exc
+    with reraise_as(SceneError):
+        pb = llff_format.read_poses_bounds(pb_path)
     image_dir = find_image_dir(root)
     files = list_images(image_dir)  # lexicographic, the row order of poses_bounds
     if len(files) != len(pb):

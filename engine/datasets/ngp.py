@@ -6,17 +6,16 @@ from pathlib import Path
 
 import torch
 
-from sparsesplat.engine.camera_convert import distortion_from_transforms
+from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
 from sparsesplat.engine.datasets.common import (
     covisible_box,
-    default_background,
     load_view,
     look_at_bounds,
-    recomposite,
+    on_default_background,
 )
 from sparsesplat.engine.datasets.splits import llff_split
-from sparsesplat.engine.errors import CameraError, SceneError
+from sparsesplat.engine.errors import SceneError, reraise_as
 from sparsesplat.engine.scene import Scene
 
 BLACK = (0.0, 0.0, 0.0)
@@ -36,10 +35,8 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
 
     def view(i: int):  # type: ignore[no-untyped-def]
         image_path = frame_image_path(root, frames[i], str(path))
-        try:
-            coeffs = distortion_from_transforms(meta, frames[i])
-        except CameraError as exc:
-            raise SceneError(f"{path}: {exc}") from exc
+        with reraise_as(SceneError):
+            coeffs = transforms_format.distortion(meta, frames[i], str(path))
         return load_view(
             image_path.stem, image_path, cameras[i], BLACK, downscale, distortion=coeffs
         )
@@ -47,14 +44,10 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     near, far = look_at_bounds(cameras)
     train_cams = [cameras[i] for i in train_idx]
     box = covisible_box(train_cams, [near] * len(train_cams), [far] * len(train_cams))
-    train = [view(i) for i in train_idx]
-    test = [view(i) for i in test_idx]
     # RGBA frames (nerfstudio/instant-ngp cut-outs) go on white, like every alpha capture.
-    background = default_background(train + test, BLACK)
-    if background != BLACK:
-        old, new = torch.tensor(BLACK), torch.tensor(background)
-        train = [recomposite(v, old, new) for v in train]
-        test = [recomposite(v, old, new) for v in test]
+    train, test, background = on_default_background(
+        [view(i) for i in train_idx], [view(i) for i in test_idx], BLACK
+    )
     return Scene(
         name=root.name,
         format="ngp",

@@ -9,7 +9,6 @@ extent is opacity-aware: ``min(3.33, sqrt(2 ln(255 o)))`` standard deviations pe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -138,10 +137,3 @@ def project(
         radii = torch.stack([rx.clamp(max=big), ry.clamp(max=big)], dim=-1)
         radii = torch.where(keep.unsqueeze(-1), radii, torch.zeros_like(radii)).to(torch.int32)
     return Projected(means2d, conics, torch.where(in_depth, z, zero), opacities, radii)
-
-
-def max_extent_sigma(opacity: float) -> float:
-    """Screen extent in standard deviations for a Gaussian of the given opacity (for docs/tests)."""
-    if opacity < ALPHA_THRESHOLD:
-        return 0.0
-    return min(MAX_EXTENT_SIGMA, math.sqrt(2.0 * math.log(opacity / ALPHA_THRESHOLD)))

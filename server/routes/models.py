@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import FileResponse
@@ -13,6 +13,7 @@ from pydantic import ValidationError
 
 from sparsesplat.api.cameras import AxisConvention, PinholeCamera, PoseDirection
 from sparsesplat.api.jobs import Job, JobState, ModelInfo
+from sparsesplat.api.names import ARTIFACT_FILES, ExportFormat
 from sparsesplat.api.renders import RenderOutput, RenderRequest
 from sparsesplat.server.deps import OwnerDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
@@ -23,9 +24,7 @@ from sparsesplat.server.uploads import pydantic_message
 router = APIRouter(prefix="/v1/models", tags=["models"])
 
 EXPORTS = {
-    "ply": ("ply", "application/octet-stream", "model.ply"),
-    "splat": ("splat", "application/octet-stream", "model.splat"),
-    "checkpoint": ("checkpoint", "application/octet-stream", "checkpoint.pt"),
+    fmt: (fmt, "application/octet-stream", ARTIFACT_FILES[fmt]) for fmt in get_args(ExportFormat)
 }
 """Export format → (artifact kind, media type, download name)."""
 

@@ -1,5 +1,6 @@
-"""The README's SDK example runs as written against a real service, at smoke scale, and the
-CLI commands it shows work with the exit codes docs/sdk.md promises."""
+"""The README is true: its set-up commands are the Makefile's, every file it links exists,
+every route it names is served, its SDK example runs as written against a real service (smoke
+scale), and the CLI commands it shows work with the exit codes docs/sdk.md promises."""
 
 from __future__ import annotations
 
@@ -15,18 +16,73 @@ import pytest
 from sparsesplat.client import Client, media
 from tests.client.conftest import REPO, Server, Trained
 
-pytestmark = pytest.mark.shared_data
+shared_data = pytest.mark.shared_data
+README = REPO / "README.md"
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+ROUTE = re.compile(r"\b(GET|POST|DELETE) (/v1/[\w{}/.-]+)")
+
+
+def test_readme_starts_with_the_two_make_targets() -> None:
+    """The set-up block is ``make run`` then ``make test``, both real Makefile targets."""
+    block = README.read_text().split("## Set up", 1)[1].split("```", 2)[1]
+    commands = [line.split()[:2] for line in block.splitlines()[1:] if line.strip()]
+    assert commands == [["make", "run"], ["make", "test"]]
+    targets = re.findall(r"^([\w-]+):", (REPO / "Makefile").read_text(), re.M)
+    assert {"run", "test"} <= set(targets)
+
+
+@pytest.mark.parametrize(
+    "page", ["README.md", *sorted(p.name for p in (REPO / "docs").glob("*.md"))]
+)
+def test_every_relative_link_resolves(page: str) -> None:
+    path = REPO / page if page == "README.md" else REPO / "docs" / page
+    links = [
+        m for m in LINK.findall(path.read_text()) if "://" not in m and not m.startswith("mailto:")
+    ]
+    missing = [link for link in links if not (path.parent / link).exists()]
+    assert not missing, f"{page} links to files that do not exist: {missing}"
+    if page == "README.md":
+        assert len(links) >= 8, "the README links out to the docs"
+
+
+def _served_routes(data_dir: Path) -> set[tuple[str, str]]:
+    """(method, path with every parameter written ``{}``) of each route in the app's OpenAPI
+    document (every API route is in it)."""
+    pytest.importorskip("fastapi")
+    from sparsesplat.api.settings import Settings
+    from sparsesplat.server.app import create_app
+
+    app = create_app(Settings(data_dir=data_dir, workers=0, render_workers=0))
+    return {
+        (method.upper(), re.sub(r"\{[^}]*\}", "{}", path))
+        for path, operations in app.openapi()["paths"].items()
+        for method in operations
+    }
+
+
+def test_every_route_the_readme_names_is_served(tmp_path: Path) -> None:
+    """Including the uploaded photos and the depth priors (an older README said none did)."""
+    named = {(m, re.sub(r"\{[^}]*\}", "{}", p)) for m, p in ROUTE.findall(README.read_text())}
+    assert ("GET", "/v1/jobs/{}/images/{}") in named and ("GET", "/v1/jobs/{}/priors/{}") in named
+    missing = named - _served_routes(tmp_path)
+    assert not missing, f"the README names routes the app does not serve: {sorted(missing)}"
+
+
+def test_the_route_check_can_fail(tmp_path: Path) -> None:
+    """A route the app does not have is reported (the check is not vacuous)."""
+    assert ("GET", "/v1/jobs/{}/photos/{}") not in _served_routes(tmp_path)
 
 
 def readme_example() -> str:
     """The first Python block of the README's "Python SDK and CLI" section."""
-    text = (REPO / "README.md").read_text()
+    text = README.read_text()
     section = text.split("## Python SDK and CLI", 1)[1].split("\n## ", 1)[0]
     match = re.search(r"```python\n(.*?)```", section, re.S)
     assert match, "no python example in the README section"
     return match.group(1)
 
 
+@shared_data
 def test_readme_example_runs_as_written(server: Server, tmp_path: Path) -> None:
     # Run from a folder where ../shared/data resolves as it does from the repository root.
     work = tmp_path / "repo"
@@ -61,6 +117,7 @@ def _cli(*args: str, url: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
+@shared_data
 def test_cli_commands_and_exit_codes(trained: Trained, tmp_path: Path) -> None:
     url, job_id = trained.url, trained.job.id
     status = _cli("status", job_id, "--json", url=url, cwd=tmp_path)
@@ -99,6 +156,7 @@ def test_cli_commands_and_exit_codes(trained: Trained, tmp_path: Path) -> None:
     assert down.returncode == 9 and "cannot reach" in down.stderr
 
 
+@shared_data
 def test_cli_submit_cancel_delete(server: Server, trained: Trained, tmp_path: Path) -> None:
     """Submit a folder (cameras.json upload written from the shared job), cancel, delete."""
     folder = tmp_path / "upload"

@@ -19,17 +19,72 @@ ALLOWED: dict[str, set[str]] = {
     "worker": {"worker", "api", "engine"},
     "engine": {"engine", "api"},
 }
-# The engine may import api's pure-pydantic schemas, so one schema validates the files the
-# engine reads (cameras.json, render cameras) — and only those modules: settings, logging,
-# job and store modules stay out of the engine.
-ENGINE_MAY_IMPORT_FROM_API = {"sparsesplat.api.cameras"}
-# What an api module the engine imports may itself import: the standard library and pydantic.
-LIGHT_SCHEMA_DEPENDENCIES = {"pydantic"}
+# The engine may import three light parts of api, each shared with the torch-free SDK so that
+# one definition serves both: the pure-pydantic camera schemas (one schema validates
+# cameras.json and render cameras everywhere) and the scene-format readers (file layouts,
+# splits, pose conventions; the engine wraps them into torch Scenes), and the shared names.
+# Settings, logging, job and store modules stay out of the engine. Each entry covers the
+# module or package and everything below it.
+ENGINE_MAY_IMPORT_FROM_API = {
+    "sparsesplat.api.cameras",
+    "sparsesplat.api.scenes",
+    "sparsesplat.api.names",
+}
+# What those api modules may import besides the standard library (NumPy only inside the
+# functions that need it: the base SDK install, which has no NumPy, reads the JSON formats),
+# and which of our modules. The shared names (job states, training choices, artifact files)
+# are plain literals: standard library only.
+LIGHT_DEPENDENCIES = {
+    "sparsesplat.api.cameras": {"pydantic"},
+    "sparsesplat.api.scenes": {"numpy"},
+    "sparsesplat.api.names": set(),
+}
+# Modules a package loads by name string (importlib.import_module / __import__) that cross the
+# layering on purpose: the ``sparsesplat render`` command renders a local checkpoint through
+# the engine's command when the engine extra is installed (MissingExtra otherwise).
+DISPATCH_BY_NAME = {("client/commands/render.py", "sparsesplat.engine.commands.render")}
 
 
-def _imported_modules(path: Path) -> list[tuple[str, int]]:
+def _module_constants(tree: ast.Module) -> dict[str, str]:
+    """Module-level ``NAME = "string"`` assignments (a module name kept in a constant)."""
+    found: dict[str, str] = {}
+    for node in tree.body:
+        value = node.value if isinstance(node, ast.Assign | ast.AnnAssign) else None
+        if isinstance(value, ast.Constant) and isinstance(value.value, str):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            found.update({t.id: value.value for t in targets if isinstance(t, ast.Name)})
+    return found
+
+
+def _imported_by_name(tree: ast.Module) -> list[str]:
+    """Modules loaded by name string: ``importlib.import_module(X)``, ``import_module(X)`` or
+    ``__import__(X)`` where X is a string literal, a module-level string constant, or an
+    f-string (its literal prefix up to the first placeholder)."""
+    constants = _module_constants(tree)
+    found: list[str] = []
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and node.args):
+            continue
+        func = node.func
+        name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+        if name not in ("import_module", "__import__"):
+            continue
+        arg = node.args[0]
+        if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+            found.append(arg.value)
+        elif isinstance(arg, ast.Name) and arg.id in constants:
+            found.append(constants[arg.id])
+        elif isinstance(arg, ast.JoinedStr) and arg.values:
+            head = arg.values[0]
+            if isinstance(head, ast.Constant) and isinstance(head.value, str):
+                found.append(head.value.rstrip("."))
+    return found
+
+
+def _imported_modules(path: Path, by_name: bool = True) -> list[tuple[str, int]]:
     """Every absolute module ``path`` imports, with ``from X import y`` also giving ``X.y``
-    (y may be a submodule); relative imports are returned with their level."""
+    (y may be a submodule); relative imports are returned with their level. With
+    ``by_name``, modules loaded by name string count too (:func:`_imported_by_name`)."""
     tree = ast.parse(path.read_text(), filename=str(path))
     found: list[tuple[str, int]] = []
     for node in ast.walk(tree):
@@ -39,6 +94,9 @@ def _imported_modules(path: Path) -> list[tuple[str, int]]:
             module = node.module or ""
             found.append((module, node.level))
             found += [(f"{module}.{alias.name}", node.level) for alias in node.names]
+    if by_name:
+        rel = str(path.relative_to(REPO)) if path.is_relative_to(REPO) else path.name
+        found += [(m, 0) for m in _imported_by_name(tree) if (rel, m) not in DISPATCH_BY_NAME]
     return found
 
 
@@ -67,41 +125,73 @@ def test_imports_follow_the_layering(package: str) -> None:
     assert not violations, "layering violated:\n" + "\n".join(violations)
 
 
-def _api_modules_imported_by_engine() -> dict[str, set[str]]:
-    """``sparsesplat.api...`` module -> engine files importing it."""
+def _allowed_in_engine(module: str) -> str | None:
+    """The :data:`ENGINE_MAY_IMPORT_FROM_API` entry covering ``module``, else None."""
+    for allowed in ENGINE_MAY_IMPORT_FROM_API:
+        if module == allowed or module.startswith(allowed + "."):
+            return allowed
+    return None
+
+
+def _api_modules_imported_by_engine(root: Path = REPO / "engine") -> dict[str, set[str]]:
+    """``sparsesplat.api...`` module -> engine files importing it (``from M import x`` counts
+    as ``M``: x may be a function as well as a submodule)."""
     used: dict[str, set[str]] = {}
-    for path in sorted((REPO / "engine").rglob("*.py")):
-        for name, level in _imported_modules(path):
-            parts = name.split(".")
-            if level == 0 and parts[:2] == ["sparsesplat", "api"] and len(parts) > 2:
-                # ``from sparsesplat.api.cameras import X`` also yields ``...cameras.X``.
-                module = ".".join(parts[:3])
-                used.setdefault(module, set()).add(str(path.relative_to(REPO)))
-            elif level == 0 and name == "sparsesplat.api":
-                used.setdefault(name, set()).add(str(path.relative_to(REPO)))
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        names = [
+            alias.name for n in ast.walk(tree) if isinstance(n, ast.Import) for alias in n.names
+        ]
+        names += [
+            n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level
+        ]
+        names += _imported_by_name(tree)
+        for name in names:
+            if name == "sparsesplat.api" or name.startswith("sparsesplat.api."):
+                used.setdefault(name, set()).add(str(path.relative_to(root.parent)))
     return used
 
 
-def test_engine_imports_only_the_pure_schema_modules_of_api() -> None:
+def test_engine_imports_only_the_light_modules_of_api() -> None:
     used = _api_modules_imported_by_engine()
-    bad = {m: sorted(files) for m, files in used.items() if m not in ENGINE_MAY_IMPORT_FROM_API}
+    bad = {m: sorted(files) for m, files in used.items() if _allowed_in_engine(m) is None}
     assert not bad, f"engine may import only {sorted(ENGINE_MAY_IMPORT_FROM_API)} from api: {bad}"
-    # The rule is live, not vacuous: the folder loader does validate through the api schema.
+    # The rule is live, not vacuous: the folder loader validates through the api schema and the
+    # format loaders read through the shared scene readers.
     assert "engine/datasets/folder.py" in used.get("sparsesplat.api.cameras", set())
+    assert any(m.startswith("sparsesplat.api.scenes") for m in used)
 
 
-@pytest.mark.parametrize("module", sorted(ENGINE_MAY_IMPORT_FROM_API))
-def test_schema_modules_the_engine_imports_stay_light(module: str) -> None:
-    """Statically: stdlib + pydantic only; at run time: no torch, no web stack, none of ours."""
-    path = REPO / Path(*module.split(".")[1:]).with_suffix(".py")
+def _light_modules() -> list[str]:
+    """Every module under the :data:`ENGINE_MAY_IMPORT_FROM_API` entries."""
+    modules = []
+    for entry in sorted(ENGINE_MAY_IMPORT_FROM_API):
+        base = REPO / Path(*entry.split(".")[1:])
+        files = sorted(base.rglob("*.py")) if base.is_dir() else [base.with_suffix(".py")]
+        for path in files:
+            parts = ["sparsesplat", *path.relative_to(REPO).with_suffix("").parts]
+            modules.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return modules
+
+
+@pytest.mark.parametrize("module", _light_modules())
+def test_api_modules_the_engine_imports_stay_light(module: str) -> None:
+    """Statically: stdlib, the entry's own dependency and its own package only; at run time:
+    no torch, NumPy, web stack or anything of ours beyond api."""
+    entry = _allowed_in_engine(module)
+    assert entry is not None
+    relative = Path(*module.split(".")[1:])
+    path = REPO / relative / "__init__.py"
+    path = path if path.is_file() else (REPO / relative).with_suffix(".py")
     heavy = []
     for name, level in _imported_modules(path):
         top = name.split(".")[0]
         if level or top == "__future__" or top in sys.stdlib_module_names:
             continue
-        if top not in LIGHT_SCHEMA_DEPENDENCIES:
+        if top not in LIGHT_DEPENDENCIES[entry] and not name.startswith(entry):
             heavy.append(name)
-    assert not heavy, f"{module} imports beyond stdlib + pydantic: {sorted(set(heavy))}"
+    allowed = sorted(LIGHT_DEPENDENCIES[entry])
+    assert not heavy, f"{module} imports beyond stdlib + {allowed}: {sorted(set(heavy))}"
     watched = ("torch", "numpy", "fastapi", "httpx", "starlette", "pydantic_settings")
     code = (
         f"import sys, importlib; importlib.import_module({module!r}); "
@@ -116,12 +206,49 @@ def test_schema_modules_the_engine_imports_stay_light(module: str) -> None:
 
 
 def test_the_engine_api_rule_can_fail(tmp_path: Path) -> None:
-    """Guard against a vacuous rule: an engine-style import of api.settings is caught."""
+    """Guard against a vacuous rule: engine-style imports of api.settings (plain, by name
+    string, through a constant) and of a module merely named like an allowed one are caught."""
     probe = tmp_path / "probe.py"
-    probe.write_text("from sparsesplat.api.settings import Settings\nimport sparsesplat.api.logs\n")
-    modules = {n for n, level in _imported_modules(probe) if not level}
-    assert {"sparsesplat.api.settings", "sparsesplat.api.logs"} <= modules
-    assert not ({"sparsesplat.api.settings", "sparsesplat.api.logs"} & ENGINE_MAY_IMPORT_FROM_API)
+    probe.write_text(
+        "import importlib\n"
+        "from sparsesplat.api.settings import Settings\n"
+        "import sparsesplat.api.logs\n"
+        "STORE = 'sparsesplat.api.store.jobs'\n"
+        "importlib.import_module('sparsesplat.api.jobs')\n"
+        "importlib.import_module(STORE)\n"
+        "__import__('sparsesplat.api.scenesque')\n"
+        "from sparsesplat.api.scenes.splits import llff_split\n"
+    )
+    used = _api_modules_imported_by_engine(tmp_path)
+    bad = {m for m in used if _allowed_in_engine(m) is None}
+    assert bad == {
+        "sparsesplat.api.settings",
+        "sparsesplat.api.logs",
+        "sparsesplat.api.jobs",
+        "sparsesplat.api.store.jobs",
+        "sparsesplat.api.scenesque",
+    }
+    assert _allowed_in_engine("sparsesplat.api.scenes.splits") == "sparsesplat.api.scenes"
+
+
+def test_the_layering_rule_sees_imports_by_name_string(tmp_path: Path) -> None:
+    """A client module that loads the engine through importlib, directly, through a module
+    constant or an f-string, breaks the layering like a plain import would; the one
+    documented dispatch (:data:`DISPATCH_BY_NAME`) is the only exception."""
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import importlib\n"
+        "ENGINE = 'sparsesplat.engine.train'\n"
+        "def load(kind):\n"
+        "    importlib.import_module(ENGINE)\n"
+        "    __import__('sparsesplat.worker.cli')\n"
+        "    return importlib.import_module(f'sparsesplat.server.{kind}')\n"
+    )
+    assert _our_imports(probe, "client") - ALLOWED["client"] == {"engine", "worker", "server"}
+    assert not _our_imports(probe, "worker") - ALLOWED["worker"] - {"server"}
+    render = REPO / "client" / "commands" / "render.py"
+    assert "sparsesplat.engine.commands.render" in _imported_by_name(ast.parse(render.read_text()))
+    assert "engine" not in _our_imports(render, "client")
 
 
 _BLOCK_TORCH = """
