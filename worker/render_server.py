@@ -55,11 +55,33 @@ class ModelCache:
             self._models.move_to_end(model_id)
             return cached[1]
         model = load_model(path, self.device)
+        self._use_export_sh(model_id, model)
         self._models[model_id] = (mtime, model)
         self._models.move_to_end(model_id)
         while len(self._models) > self.capacity:
             self._models.popitem(last=False)
         return model
+
+    def _use_export_sh(self, model_id: str, model: Any) -> None:
+        """Serve ``baked`` renders with the SH of the run's .ply export when it is this model's.
+
+        The trainer baked them fitting the training directions as well as the sphere, which is
+        more faithful where the model was trained than a bake from sphere directions alone;
+        without a matching export the model bakes its own on the first ``baked`` render.
+        """
+        from sparsesplat.engine.export.ply import read_ply
+
+        path = self.storage.artifact(model_id, "ply")
+        if not path.is_file():
+            return
+        try:
+            ply = read_ply(path)
+        except Exception:  # an unreadable export only costs the fidelity of the bake
+            log.warning("cannot read the .ply export; baked renders bake again", exc_info=True)
+            return
+        means = model.gaussians.means.detach().cpu()
+        if ply["means"].shape == means.shape and bool((ply["means"] == means).all()):
+            model.use_baked_sh(ply["sh"])
 
     def __len__(self) -> int:
         return len(self._models)
@@ -109,8 +131,9 @@ class Renderer:
         return buffer.getvalue(), MEDIA_TYPES["zip"], headers
 
     def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
-        out = model.render(engine_camera(camera, request.downscale))
-        image = out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy()
+        out = model.render(engine_camera(camera, request.downscale), mode=request.mode)
+        # Views of the render's memory, not copies: the encoder reads them once.
+        image = out.image.permute(1, 2, 0).cpu().numpy()
         depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
         return encode(request.output, image, depth, alpha, request.quality)
 

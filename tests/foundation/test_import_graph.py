@@ -20,9 +20,9 @@ ALLOWED: dict[str, set[str]] = {
     "engine": {"engine", "api"},
 }
 # The engine may import api's pure-pydantic schemas, so one schema validates the files the
-# engine reads (cameras.json, render cameras) — and only those modules: settings, logging,
-# job and store modules stay out of the engine.
-ENGINE_MAY_IMPORT_FROM_API = {"sparsesplat.api.cameras"}
+# engine reads (cameras.json, render cameras) and one name set means the render modes — and only
+# those modules: settings, logging, job and store modules stay out of the engine.
+ENGINE_MAY_IMPORT_FROM_API = {"sparsesplat.api.cameras", "sparsesplat.api.renders"}
 # What an api module the engine imports may itself import: the standard library and pydantic.
 LIGHT_SCHEMA_DEPENDENCIES = {"pydantic"}
 
