@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+from typing import Any
 
 import httpx
 import numpy as np
@@ -70,6 +71,7 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     assert np.abs(served - expected).max() <= 1
 
     _check_outputs(live.url, job["id"], camera, served)
+    _check_live_view(live.url, job["id"], camera, served)
     assert model["background"] is not None and len(model["background"]) == 3
 
     # Uploaded images and the depth priors are served back (the web page shows them).
@@ -130,3 +132,52 @@ def _check_outputs(url: str, model_id: str, camera: dict, served: np.ndarray) ->
     assert path.headers["content-type"] == "application/zip"
     with zipfile.ZipFile(io.BytesIO(path.content)) as archive:
         assert archive.namelist() == ["0000.png", "0001.png"]
+
+
+def _check_live_view(url: str, model_id: str, camera: dict, served: np.ndarray) -> None:
+    """The live view's frames are the render API's images; stale poses are dropped, every pose
+    is accounted for; a bad pose is answered and the connection stays usable."""
+    from websockets.exceptions import ConnectionClosed
+
+    from sparsesplat.api.renders import unpack_live_frame
+
+    ws_url = url.replace("http://", "ws://") + f"/v1/models/{model_id}/live"
+
+    def frame(ws: Any) -> tuple[Any, np.ndarray]:
+        message = ws.recv(timeout=120)
+        assert isinstance(message, bytes), message
+        header, image = unpack_live_frame(message)
+        return header, np.asarray(Image.open(io.BytesIO(image)).convert("RGB"), np.int16)
+
+    with connect(ws_url, open_timeout=30, max_size=None) as ws:
+        ws.send(json.dumps({"camera": camera, "t": 1.5, "output": "png"}))
+        header, image = frame(ws)
+        assert (header.t, header.seq, header.media) == (1.5, 1, "image/png")
+        assert np.array_equal(image, served), "the live frame is the render API's image"
+
+        ws.send(json.dumps({"camera": {**camera, "fx": -1}, "t": 2}))
+        error = json.loads(ws.recv(timeout=30))
+        assert error["type"] == "error" and error["code"] == "invalid_pose"
+        assert "fx" in error["message"]
+
+        ws.send(json.dumps({"camera": camera, "t": 3, "mode": "baked", "output": "png"}))
+        header, baked = frame(ws)
+        assert header.t == 3 and header.seq == 2
+        # The SH bake of a 40-iteration model: close to the exact colours, not equal to them.
+        assert 0 < np.abs(baked - served).mean() < 8
+
+        # Six poses sent at once, each render taking milliseconds: the ones overtaken while a
+        # render runs are dropped, the newest is always rendered, in order.
+        for t in range(10, 16):
+            ws.send(json.dumps({"camera": camera, "t": t, "output": "jpeg"}))
+        times = []
+        while not times or times[-1] != 15:
+            header, _ = frame(ws)
+            times.append(header.t)
+        assert times == sorted(times) and header.media == "image/jpeg"
+        assert len(times) + header.dropped == 6 and header.dropped >= 1, (times, header)
+
+    nope = url.replace("http://", "ws://") + "/v1/models/nope/live"
+    with connect(nope) as ws, pytest.raises(ConnectionClosed) as closed:
+        ws.recv(timeout=30)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 4404
