@@ -141,6 +141,9 @@ class Renderer:
 def _handler(renderer: Renderer) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
+        # The headers and the body go out in separate writes: with Nagle's algorithm the body's
+        # last segment can wait for the API's delayed ACK (tens of ms) on every keep-alive reply.
+        disable_nagle_algorithm = True
 
         def log_message(self, format: str, *args: Any) -> None:  # quiet: the API logs requests
             pass
