@@ -114,9 +114,13 @@ class Renderer:
     def render(self, model_id: str, request: RenderRequest) -> tuple[bytes, str, dict[str, str]]:
         """(body, media type, extra headers) for one request."""
         with self._lock:
+            started = time.perf_counter()
             model = self.cache.get(model_id)
             frames = [self._one(model, cam, request) for cam in request.cameras]
-        headers = {}
+            seconds = time.perf_counter() - started
+        # The worker's own share of the latency (model lookup, render, encoding), so that a
+        # client can tell it from the hops and the queueing.
+        headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:
