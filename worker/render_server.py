@@ -113,13 +113,21 @@ class Renderer:
 
     def render(self, model_id: str, request: RenderRequest) -> tuple[bytes, str, dict[str, str]]:
         """(body, media type, extra headers) for one request."""
-        with self._lock:
+        seconds = 0.0
+        frames = []
+        for camera in request.cameras:
+            # Only the render holds the lock: encoding (Pillow releases the GIL) overlaps the
+            # next request's render when several wait.
+            with self._lock:
+                started = time.perf_counter()
+                model = self.cache.get(model_id)
+                out = model.render(engine_camera(camera, request.downscale), mode=request.mode)
+                seconds += time.perf_counter() - started
             started = time.perf_counter()
-            model = self.cache.get(model_id)
-            frames = [self._one(model, cam, request) for cam in request.cameras]
-            seconds = time.perf_counter() - started
-        # The worker's own share of the latency (model lookup, render, encoding), so that a
-        # client can tell it from the hops and the queueing.
+            frames.append(_encode_render(out, request))
+            seconds += time.perf_counter() - started
+        # The worker's own share of the latency (model lookup, render, encoding; not the wait
+        # for the lock), so that a client can tell it from the hops and the queueing.
         headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
@@ -134,12 +142,13 @@ class Renderer:
                 archive.writestr(f"{i:04d}.{suffix}", frame)
         return buffer.getvalue(), MEDIA_TYPES["zip"], headers
 
-    def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
-        out = model.render(engine_camera(camera, request.downscale), mode=request.mode)
-        # Views of the render's memory, not copies: the encoder reads them once.
-        image = out.image.permute(1, 2, 0).cpu().numpy()
-        depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
-        return encode(request.output, image, depth, alpha, request.quality)
+
+def _encode_render(out: Any, request: RenderRequest) -> bytes:
+    """The bytes of ``request.output`` for one render (a RasterOutput)."""
+    # Views of the render's memory, not copies: the encoder reads them once.
+    image = out.image.permute(1, 2, 0).cpu().numpy()
+    depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
+    return encode(request.output, image, depth, alpha, request.quality)
 
 
 def _handler(renderer: Renderer) -> type[BaseHTTPRequestHandler]:
