@@ -58,7 +58,7 @@ export class LiveView {
     this.ws = ws;
     ws.onopen = () => {
       this.onStatus("live");
-      if (this.pending) this.send(this.pending);
+      if (this.pending) this.send(this.pending.camera, this.pending.extra);
       this.pending = null;
     };
     ws.onmessage = (message) => this.receive(message.data);
@@ -76,16 +76,17 @@ export class LiveView {
     if (ws) ws.close(1000);
   }
 
-  /** Ask for a render of `camera` (a wire PinholeCamera); replaces any pose not yet sent. */
-  send(camera) {
+  /** Ask for a render of `camera` (a wire PinholeCamera), with `extra` pose fields (e.g.
+   * `downscale`); replaces any pose not yet sent. */
+  send(camera, extra = {}) {
     if (!this.ws || this.ws.readyState !== WebSocket.OPEN) {
-      this.pending = camera;
+      this.pending = { camera, extra };
       return;
     }
     const t = now();
     this.lastSent = t;
     this.stats.sent += 1;
-    this.ws.send(JSON.stringify({ camera, t, ...this.options }));
+    this.ws.send(JSON.stringify({ camera, t, ...this.options, ...extra }));
   }
 
   async receive(data) {

@@ -30,6 +30,8 @@ const DETAIL_OPTIONS = [0, 50000, 20000, 10000, 5000, 2000];
 /** The "every splat" budget: more than any model here, so every splat of at least a pixel is
  * drawn. */
 const ALL_SPLATS = 20_000_000;
+/** Largest live-view frame rendered at full size while the camera moves (504x378 and a bit). */
+const LIVE_FULL_SIZE_PIXELS = 240_000;
 /** Milliseconds after the last camera change before the view counts as still (snapshots). */
 const SETTLE_MS = 250;
 
@@ -200,10 +202,13 @@ export function mount(container, { jobId }) {
     if (live) {
       // The server draws: send the pose when it changed; the browser draws only for snapshots.
       const wire = currentCamera();
-      const key = JSON.stringify(wire);
+      // While moving, a large canvas is rendered at half size (a quarter of the pixels); the
+      // still view is rendered at full size once the camera settles.
+      const downscale = stats.moving && wire.width * wire.height > LIVE_FULL_SIZE_PIXELS ? 2 : 1;
+      const key = `${JSON.stringify(wire)}/${downscale}`;
       if (key !== liveSentKey) {
         liveSentKey = key;
-        live.send(wire);
+        live.send(wire, { downscale });
       }
       if (!snapshotWaiters.length) dirty = false;
     }
