@@ -11,8 +11,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -50,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--depth", default=None, help="also write the depth as .npy here")
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    parser.add_argument(
+        "--mode",
+        choices=get_args(RenderMode),
+        default=DEFAULT_RENDER_MODE,
+        help="neural: the model's own colours, exactly (default); baked: their degree-3 SH bake",
+    )
 
 
 def read_camera_spec(spec: str) -> Any:
@@ -143,7 +150,7 @@ def _run(args: argparse.Namespace) -> int:
     device = check_device(args.device)
     prepare_native(device)
     model = load_model(args.checkpoint, device)
-    out = model.render(engine_camera(camera))
+    out = model.render(engine_camera(camera), mode=args.mode)
     coverage = float(out.alpha.mean())
     if coverage < EMPTY_RENDER_COVERAGE:
         print(
