@@ -43,9 +43,11 @@ class ModelCache:
         self.capacity = capacity
         self.device = device
         self._models: OrderedDict[str, tuple[float, Any]] = OrderedDict()
+        self._export_read: set[str] = set()  # loaded models given their export's SH (if any)
 
-    def get(self, model_id: str) -> Any:
-        """The loaded model (reloaded when its checkpoint changed); FileNotFoundError if none."""
+    def get(self, model_id: str, mode: str = "neural") -> Any:
+        """The loaded model (reloaded when its checkpoint changed), ready to render in ``mode``;
+        FileNotFoundError if none."""
         from sparsesplat.engine.train import load_model
 
         path = self.storage.artifact(model_id, "checkpoint")
@@ -53,14 +55,23 @@ class ModelCache:
         cached = self._models.get(model_id)
         if cached is not None and cached[0] == mtime:
             self._models.move_to_end(model_id)
-            return cached[1]
-        model = load_model(path, self.device)
-        self._use_export_sh(model_id, model)
+            model = cached[1]
+        else:
+            model = load_model(path, self.device)
+            self._store(model_id, mtime, model)
+        if mode == "baked" and model_id not in self._export_read:
+            # Read on the first baked render only: most models are only ever rendered exactly.
+            self._use_export_sh(model_id, model)
+            self._export_read.add(model_id)
+        return model
+
+    def _store(self, model_id: str, mtime: float, model: Any) -> None:
+        self._export_read.discard(model_id)
         self._models[model_id] = (mtime, model)
         self._models.move_to_end(model_id)
         while len(self._models) > self.capacity:
-            self._models.popitem(last=False)
-        return model
+            gone, _ = self._models.popitem(last=False)
+            self._export_read.discard(gone)
 
     def _use_export_sh(self, model_id: str, model: Any) -> None:
         """Serve ``baked`` renders with the SH of the run's .ply export when it is this model's.
@@ -120,7 +131,7 @@ class Renderer:
             # next request's render when several wait.
             with self._lock:
                 started = time.perf_counter()
-                model = self.cache.get(model_id)
+                model = self.cache.get(model_id, request.mode)
                 out = model.render(engine_camera(camera, request.downscale), mode=request.mode)
                 seconds += time.perf_counter() - started
             started = time.perf_counter()

@@ -70,6 +70,18 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     # Same model, same camera, same kernel: equal up to one 8-bit step of rounding.
     assert np.abs(served - expected).max() <= 1
 
+    # The baked mode renders the SH of the run's .ply export (the trainer's bake).
+    from sparsesplat.engine.export.ply import read_ply
+
+    local = load_model(run / "run")
+    local.use_baked_sh(read_ply(run / "run" / "model.ply")["sh"])
+    baked_ref = local.render(view.camera, mode="baked").image.clamp(0, 1)
+    baked_ref = (baked_ref.permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.int16)
+    answer = httpx.post(f"{live.url}/v1/models/{job['id']}/render",
+                        json={"camera": camera, "mode": "baked"}, timeout=120)  # fmt: skip
+    baked = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), dtype=np.int16)
+    assert np.abs(baked - baked_ref).max() <= 1
+
     _check_outputs(live.url, job["id"], camera, served)
     _check_live_view(live.url, job["id"], camera, served)
     assert model["background"] is not None and len(model["background"]) == 3
@@ -163,8 +175,10 @@ def _check_live_view(url: str, model_id: str, camera: dict, served: np.ndarray) 
         ws.send(json.dumps({"camera": camera, "t": 3, "mode": "baked", "output": "png"}))
         header, baked = frame(ws)
         assert header.t == 3 and header.seq == 2
-        # The SH bake of a 40-iteration model: close to the exact colours, not equal to them.
-        assert 0 < np.abs(baked - served).mean() < 8
+        answer = httpx.post(f"{url}/v1/models/{model_id}/render",
+                            json={"camera": camera, "mode": "baked"}, timeout=120)  # fmt: skip
+        want = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), np.int16)
+        assert np.array_equal(baked, want), "a baked live frame is the API's baked render"
 
         # Six poses sent at once, each render taking milliseconds: the ones overtaken while a
         # render runs are dropped, the newest is always rendered, in order.
