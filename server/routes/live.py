@@ -147,9 +147,14 @@ async def _render_loop(
             continue
         seconds = time.perf_counter() - started
         service.metrics.render_seconds.observe(seconds)
+        if reader.done():  # the client left during the render
+            return
         seq += 1
         head = LiveFrame(
             t=pose.t, seq=seq, media=MEDIA_TYPES[pose.output], render_ms=1000 * seconds,
             dropped=latest.dropped,
         )  # fmt: skip
-        await websocket.send_bytes(pack_live_frame(head, answer.content))
+        try:
+            await websocket.send_bytes(pack_live_frame(head, answer.content))
+        except RuntimeError:  # closed between the check and the send
+            return

@@ -8,6 +8,8 @@ import { apiKey } from "./api.js";
 
 /** Frames older than this (pose sent to frame decoded) are skipped while the camera moves. */
 export const MAX_FRAME_AGE_MS = 300;
+/** Milliseconds between reconnection attempts after the connection dropped. */
+const RETRY_MS = 1000;
 /** Ages of the frames shown while moving, kept for the page's statistics (a sliding window). */
 const AGE_WINDOW = 600;
 
@@ -35,6 +37,8 @@ export class LiveView {
     this.onStatus = onStatus;
     this.options = { output, quality, mode: "neural" };
     this.ws = null;
+    this.stopped = false;
+    this.retryAt = 0; // no reconnection before this (performance.now() ms)
     this.pending = null; // a pose to send once the socket opens
     this.lastSent = null; // t of the last pose sent
     this.shownSeq = 0;
@@ -52,6 +56,7 @@ export class LiveView {
 
   start() {
     if (this.ws) return this;
+    this.stopped = false;
     this.onStatus("connecting");
     const ws = new WebSocket(this.socketUrl());
     ws.binaryType = "arraybuffer";
@@ -65,12 +70,16 @@ export class LiveView {
     ws.onclose = (close) => {
       if (this.ws !== ws) return;
       this.ws = null;
+      // No key, no such model, no model yet: reconnecting cannot help.
+      if ([4401, 4404, 4409].includes(close.code)) this.stopped = true;
+      this.retryAt = performance.now() + RETRY_MS;
       this.onStatus(`closed: ${close.reason || close.code}`);
     };
     return this;
   }
 
   stop() {
+    this.stopped = true;
     const ws = this.ws;
     this.ws = null;
     if (ws) ws.close(1000);
@@ -79,6 +88,9 @@ export class LiveView {
   /** Ask for a render of `camera` (a wire PinholeCamera), with `extra` pose fields (e.g.
    * `downscale`); replaces any pose not yet sent. */
   send(camera, extra = {}) {
+    // A dropped connection (a render worker restarting, a network blip) is reopened by the
+    // next camera move.
+    if (!this.ws && !this.stopped && performance.now() >= this.retryAt) this.start();
     if (!this.ws || this.ws.readyState !== WebSocket.OPEN) {
       this.pending = { camera, extra };
       return;
