@@ -82,12 +82,14 @@ def _prepare(
         preset("default", depth_prior="none", init_points=n_gaussians, eval_lpips=False),
         iterations=iterations, densify_until=0,
     )  # fmt: skip
-    Trainer(scene, config, None, storage.run_dir(job_id)).run()
+    trained = Trainer(scene, config, None, storage.run_dir(job_id)).run()
+    print(f"# trained {iterations} iterations: {trained.n_gaussians} Gaussians", flush=True)
     store.create(job_id, "anonymous", JobSpec(), 3, 2)
     claim = store.claim("bench", 60)
     assert claim is not None and claim.job_id == job_id
     store.finish(job_id, "bench", JobState.succeeded, "bench model",
-                 {"n_gaussians": n_gaussians, "iterations": iterations, "metrics": {}})  # fmt: skip
+                 {"n_gaussians": trained.n_gaussians, "iterations": iterations,
+                  "metrics": {}})  # fmt: skip
     engine.dispose()
     return job_id, frames, storage.upload_dir(job_id)
 
