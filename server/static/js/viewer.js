@@ -405,6 +405,7 @@ export function mount(container, { jobId }) {
     );
     jumpTo(cameras.findIndex((c) => c.split !== "test"));
     renderer.setAnimationLoop(tick);
+    setLive(); // the server's frames need no download: they show while the .ply loads
 
     const started = performance.now();
     let bytes;
@@ -438,7 +439,6 @@ export function mount(container, { jobId }) {
         ["WebGL", `${gpu.software ? "software" : "hardware"}: ${gpu.name}`],
       ].flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]),
     );
-    setLive();
     canvas.dataset.ready = "1";
     dirty = true;
     resolveReady(true);
