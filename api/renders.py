@@ -1,7 +1,9 @@
-"""Wire schema of render requests: a camera (or a camera path) and what to return."""
+"""Wire schema of render requests: a camera (or a camera path) and what to return; the live
+view's poses and frames."""
 
 from __future__ import annotations
 
+import struct
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -13,6 +15,15 @@ RenderOutput = Literal[ImageFormat, "depth16", "npy", "alpha"]
 """``png``/``jpeg``/``webp``: the colour image; ``depth16``: view-space depth as a 16-bit PNG
 (millimetres of scene units: value / 1000 = depth, 0 = empty; see the ``X-Depth-Scale``
 header); ``npy``: float32 depth (H, W) as a NumPy file; ``alpha``: coverage as an 8-bit PNG."""
+
+RenderMode = Literal["neural", "baked"]
+"""How the model is coloured: ``neural`` evaluates its own colour function exactly (DNGaussian's
+neural colour field, equal to the trainer's evaluation render); ``baked`` its degree-3 SH bake
+(the colours of the .ply export, an approximation). The same for a model trained with SH colour."""
+DEFAULT_RENDER_MODE: RenderMode = "neural"
+"""Measured: with the field's view-independent part computed once per loaded model, the exact
+neural colours cost about what the baked SH cost (a few ms at 50k Gaussians next to a ~40 ms
+rasterization), so the exact mode is the default."""
 
 MEDIA_TYPES: dict[str, str] = {
     "png": "image/png",
@@ -61,6 +72,8 @@ class RenderRequest(BaseModel):
     """Integer factor the image size and focal lengths are divided by."""
     quality: int = Field(default=90, ge=1, le=100)
     """JPEG/WebP quality."""
+    mode: RenderMode = DEFAULT_RENDER_MODE
+    """``neural`` (exact) or ``baked`` (the SH of the export)."""
 
     @model_validator(mode="after")
     def _one_of(self) -> RenderRequest:
@@ -72,3 +85,69 @@ class RenderRequest(BaseModel):
     def cameras(self) -> list[PinholeCamera]:
         """The cameras to render, in order."""
         return [self.camera] if self.camera is not None else list(self.path or [])
+
+
+LiveOutput = Literal["jpeg", "png", "webp"]
+"""Image formats of the live view (``jpeg``: the cheapest to encode and to decode)."""
+
+
+class LivePose(BaseModel):
+    """A text message of the live view (``/v1/models/{id}/live``): the camera to render now.
+
+    Poses that arrive while a render is running replace one another: only the latest is
+    rendered next, so the view follows the camera without a backlog."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    camera: PinholeCamera
+    """Where to look from."""
+    t: float = 0.0
+    """The client's timestamp of this pose, echoed in the frame rendered from it (how old a
+    frame is when it is shown: the client's clock now minus ``t``)."""
+    output: LiveOutput = "jpeg"
+    """Image format of the frames."""
+    quality: int = Field(default=85, ge=1, le=100)
+    """JPEG/WebP quality."""
+    mode: RenderMode = DEFAULT_RENDER_MODE
+    """``neural`` (exact) or ``baked``."""
+    downscale: int = Field(default=1, ge=1, le=16)
+    """Integer factor the image size and focal lengths are divided by."""
+
+    def render_request(self) -> RenderRequest:
+        """The render this pose asks for."""
+        return RenderRequest(
+            camera=self.camera, output=self.output, quality=self.quality, mode=self.mode,
+            downscale=self.downscale,
+        )  # fmt: skip
+
+
+class LiveFrame(BaseModel):
+    """The header of a live-view frame. A frame is one binary message: the header's length as
+    4 bytes (big-endian), the header as UTF-8 JSON, then the encoded image."""
+
+    t: float
+    """The ``t`` of the pose rendered."""
+    seq: int
+    """1, 2, … per connection."""
+    media: str
+    """Content type of the image bytes."""
+    render_ms: float
+    """Milliseconds the API waited for the render worker (render, encoding and the hop)."""
+    dropped: int
+    """Poses replaced by a newer one before they were rendered, so far on this connection."""
+
+
+def pack_live_frame(header: LiveFrame, image: bytes) -> bytes:
+    """One live-view binary message: header length (4 bytes, big-endian), header JSON, image."""
+    head = header.model_dump_json().encode()
+    return struct.pack(">I", len(head)) + head + image
+
+
+def unpack_live_frame(message: bytes) -> tuple[LiveFrame, bytes]:
+    """The header and image bytes of a message made by :func:`pack_live_frame`."""
+    if len(message) < 4:
+        raise ValueError("live frame shorter than its 4-byte header length")
+    (n,) = struct.unpack(">I", message[:4])
+    if len(message) < 4 + n:
+        raise ValueError(f"live frame of {len(message)} bytes cannot hold a {n}-byte header")
+    return LiveFrame.model_validate_json(message[4 : 4 + n]), message[4 + n :]

@@ -84,6 +84,10 @@ class Settings(BaseSettings):
     """Local render worker processes the server starts; 0: external render workers only."""
     render_threads: int = Field(2, ge=1, le=256)
     """Torch intra-op threads per render worker."""
+    train_nice: int = Field(10, ge=0, le=19)
+    """Niceness a training worker process adds to itself when it starts, so that on shared
+    cores the render workers (niceness 0) run first and renders stay interactive while a job
+    trains; the job gets the cores whenever no render runs. 0: equal priority."""
     render_cache_models: int = Field(4, ge=1, le=1000)
     """Trained models each render worker keeps loaded (least recently used leave first)."""
     max_images: int = Field(64, ge=2, le=10_000)

@@ -19,7 +19,7 @@ from sparsesplat.api.settings import Settings, load_settings
 from sparsesplat.server.auth import Authenticator
 from sparsesplat.server.errors import ServiceError
 from sparsesplat.server.limits import BodySizeLimit
-from sparsesplat.server.routes import events, jobs, models, pages, service
+from sparsesplat.server.routes import events, jobs, live, models, pages, service
 from sparsesplat.server.state import ServiceState
 
 log = logging.getLogger("sparsesplat.server")
@@ -98,7 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.exception("unhandled error", extra={"path": request.url.path})
         return _error(500, "internal_error", f"the server failed: {type(exc).__name__}")
 
-    for router in (service.router, jobs.router, events.router, models.router):
+    for router in (service.router, jobs.router, events.router, models.router, live.router):
         app.include_router(router)
     app.include_router(pages.router)
     return app

@@ -133,7 +133,10 @@ def _warm_up() -> None:
     here the window would be hit far more often than in a job."""
     import torch
 
+    from sparsesplat.worker.training import lower_priority
+
     torch.set_num_threads(settings.torch_threads)
+    lower_priority(settings)  # renders on the same machine come first
     import sparsesplat.engine.datasets
     import sparsesplat.engine.train  # noqa: F401
 

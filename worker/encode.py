@@ -31,7 +31,13 @@ def encode(
     buffer = io.BytesIO()
     if output in ("png", "jpeg", "webp"):
         rgb = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        options: dict[str, Any] = {"quality": quality} if output != "png" else {"compress_level": 1}
+        # Chosen for latency: zlib level 1 (level 0 is barely faster and ~10x larger); WebP's
+        # fastest method (about 5x faster to encode than its default, a little larger).
+        options: dict[str, Any] = {
+            "png": {"compress_level": 1},
+            "jpeg": {"quality": quality},
+            "webp": {"quality": quality, "method": 0},
+        }[output]
         Image.fromarray(rgb).save(buffer, format=output.upper(), **options)
     elif output == "depth16":
         z = expected_depth(depth, alpha) * DEPTH16_UNITS_PER_SCENE_UNIT

@@ -23,7 +23,6 @@ from collections import OrderedDict
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.renders import MEDIA_TYPES, RenderRequest
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
@@ -43,9 +42,11 @@ class ModelCache:
         self.capacity = capacity
         self.device = device
         self._models: OrderedDict[str, tuple[float, Any]] = OrderedDict()
+        self._export_read: set[str] = set()  # loaded models given their export's SH (if any)
 
-    def get(self, model_id: str) -> Any:
-        """The loaded model (reloaded when its checkpoint changed); FileNotFoundError if none."""
+    def get(self, model_id: str, mode: str = "neural") -> Any:
+        """The loaded model (reloaded when its checkpoint changed), ready to render in ``mode``;
+        FileNotFoundError if none."""
         from sparsesplat.engine.train import load_model
 
         path = self.storage.artifact(model_id, "checkpoint")
@@ -53,13 +54,44 @@ class ModelCache:
         cached = self._models.get(model_id)
         if cached is not None and cached[0] == mtime:
             self._models.move_to_end(model_id)
-            return cached[1]
-        model = load_model(path, self.device)
+            model = cached[1]
+        else:
+            model = load_model(path, self.device)
+            self._store(model_id, mtime, model)
+        if mode == "baked" and model_id not in self._export_read:
+            # Read on the first baked render only: most models are only ever rendered exactly.
+            self._use_export_sh(model_id, model)
+            self._export_read.add(model_id)
+        return model
+
+    def _store(self, model_id: str, mtime: float, model: Any) -> None:
+        self._export_read.discard(model_id)
         self._models[model_id] = (mtime, model)
         self._models.move_to_end(model_id)
         while len(self._models) > self.capacity:
-            self._models.popitem(last=False)
-        return model
+            gone, _ = self._models.popitem(last=False)
+            self._export_read.discard(gone)
+
+    def _use_export_sh(self, model_id: str, model: Any) -> None:
+        """Serve ``baked`` renders with the SH of the run's .ply export when it is this model's.
+
+        The trainer baked them fitting the training directions as well as the sphere, which is
+        more faithful where the model was trained than a bake from sphere directions alone;
+        without a matching export the model bakes its own on the first ``baked`` render.
+        """
+        from sparsesplat.engine.export.ply import read_ply
+
+        path = self.storage.artifact(model_id, "ply")
+        if not path.is_file():
+            return
+        try:
+            ply = read_ply(path)
+        except Exception:  # an unreadable export only costs the fidelity of the bake
+            log.warning("cannot read the .ply export; baked renders bake again", exc_info=True)
+            return
+        means = model.gaussians.means.detach().cpu()
+        if ply["means"].shape == means.shape and bool((ply["means"] == means).all()):
+            model.use_baked_sh(ply["sh"])
 
     def __len__(self) -> int:
         return len(self._models)
@@ -77,10 +109,24 @@ class Renderer:
 
     def render(self, model_id: str, request: RenderRequest) -> tuple[bytes, str, dict[str, str]]:
         """(body, media type, extra headers) for one request."""
-        with self._lock:
-            model = self.cache.get(model_id)
-            frames = [self._one(model, cam, request) for cam in request.cameras]
-        headers = {}
+        from sparsesplat.engine.camera import Camera
+
+        seconds = 0.0
+        frames = []
+        for camera in request.cameras:
+            # Only the render holds the lock: encoding (Pillow releases the GIL) overlaps the
+            # next request's render when several wait.
+            with self._lock:
+                started = time.perf_counter()
+                model = self.cache.get(model_id, request.mode)
+                out = model.render(Camera.from_wire(camera, request.downscale), mode=request.mode)
+                seconds += time.perf_counter() - started
+            started = time.perf_counter()
+            frames.append(_encode_render(out, request))
+            seconds += time.perf_counter() - started
+        # The worker's own share of the latency (model lookup, render, encoding; not the wait
+        # for the lock), so that a client can tell it from the hops and the queueing.
+        headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:
@@ -94,18 +140,21 @@ class Renderer:
                 archive.writestr(f"{i:04d}.{suffix}", frame)
         return buffer.getvalue(), MEDIA_TYPES["zip"], headers
 
-    def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
-        from sparsesplat.engine.camera import Camera
 
-        out = model.render(Camera.from_wire(camera, request.downscale))
-        image = out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy()
-        depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
-        return encode(request.output, image, depth, alpha, request.quality)
+def _encode_render(out: Any, request: RenderRequest) -> bytes:
+    """The bytes of ``request.output`` for one render (a RasterOutput)."""
+    # Views of the render's memory, not copies: the encoder reads them once.
+    image = out.image.permute(1, 2, 0).cpu().numpy()
+    depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
+    return encode(request.output, image, depth, alpha, request.quality)
 
 
 def _handler(renderer: Renderer) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
+        # The headers and the body go out in separate writes: with Nagle's algorithm the body's
+        # last segment can wait for the API's delayed ACK (tens of ms) on every keep-alive reply.
+        disable_nagle_algorithm = True
 
         def log_message(self, format: str, *args: Any) -> None:  # quiet: the API logs requests
             pass

@@ -28,6 +28,19 @@ from sparsesplat.worker.patient_store import PatientJobStore
 log = logging.getLogger("sparsesplat.worker")
 
 
+def lower_priority(settings: Settings) -> None:
+    """Raise this training process's niceness by ``settings.train_nice`` (once per process),
+    so that renders sharing its cores run first."""
+    global _niced
+    if not _niced and settings.train_nice > 0:
+        os.nice(settings.train_nice)
+        _niced = True
+
+
+_niced = False
+"""Whether :func:`lower_priority` already ran in this process (niceness adds up)."""
+
+
 class TrainingWorker:
     """Claims and runs jobs one at a time until stopped."""
 
@@ -105,6 +118,7 @@ class TrainingWorker:
 
         torch.set_num_threads(self.settings.torch_threads)
         if threading.current_thread() is threading.main_thread():
+            lower_priority(self.settings)
             signal.signal(signal.SIGTERM, self._on_signal)
             signal.signal(signal.SIGINT, self._on_signal)
 

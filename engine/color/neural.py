@@ -115,6 +115,18 @@ class NeuralColorField(nn.Module):
         pre = nn.functional.linear(self._sh(dirs), w[:, :16])
         return self._head(torch.addmm(pre, geo, w[:, 16:].t()))
 
+    def project_features(self, geo: Tensor) -> Tensor:
+        """(N, geo_dim) features → (N, hidden): their share of the colour head's first layer.
+
+        It does not depend on the view, so a renderer computes it once per model and each view
+        pays only the 16-wide direction product (:meth:`colors_from_projected`)."""
+        return nn.functional.linear(geo, _weight(self.color_mlp, 0)[:, 16:])
+
+    def colors_from_projected(self, projected: Tensor, dirs: Tensor) -> Tensor:
+        """Per-view head from :meth:`project_features`' output and (N, 3) unit directions."""
+        w = _weight(self.color_mlp, 0)
+        return self._head(torch.addmm(projected, self._sh(dirs), w[:, :16].t()))
+
     def forward(self, means: Tensor, camera_center: Tensor) -> Tensor:
         """Full evaluation for one view (training path; gradients reach means and weights)."""
         dirs = nn.functional.normalize(means - camera_center, dim=-1)

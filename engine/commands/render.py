@@ -11,9 +11,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 from sparsesplat.api.names import IMAGE_OUTPUT_SUFFIXES
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -51,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--depth", default=None, help="also write the depth as .npy here")
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    parser.add_argument(
+        "--mode",
+        choices=get_args(RenderMode),
+        default=DEFAULT_RENDER_MODE,
+        help="neural: the model's own colours, exactly (default); baked: their degree-3 SH bake",
+    )
 
 
 def read_camera_spec(spec: str) -> Any:
@@ -136,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     model = load_model(args.checkpoint, device)
     from sparsesplat.engine.camera import Camera
 
-    out = model.render(Camera.from_wire(camera))
+    out = model.render(Camera.from_wire(camera), mode=args.mode)
     coverage = float(out.alpha.mean())
     if coverage < EMPTY_RENDER_COVERAGE:
         print(

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-import functools
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import torch
 from torch import Tensor
 
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import EngineError
 from sparsesplat.engine.raster.types import RasterOutput
@@ -49,12 +50,17 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return state
 
 
+RENDER_MODES: tuple[str, ...] = get_args(RenderMode)
+"""The accepted render modes (``api.renders.RenderMode``: neural = exact, baked = SH bake)."""
+
+
 class TrainedModel:
-    """A trained scene ready to render (geometry features cached once at load)."""
+    """A trained scene ready to render: what does not depend on the view is computed once."""
 
     def __init__(self, state: dict[str, Any], device: str | torch.device = "cpu") -> None:
         """Build from a checkpoint state dict."""
         from sparsesplat.engine.color.models import NeuralColor, make_color_model
+        from sparsesplat.engine.color.view_colors import NeuralViewColors
         from sparsesplat.engine.gaussians import Gaussians
         from sparsesplat.engine.train.config import TrainConfig
 
@@ -65,29 +71,81 @@ class TrainedModel:
         self.background: Tensor = state["background"].to(self.device)
         self.iteration = int(state["iteration"])
         self.raster_near = float(state.get("raster_near", 0.01))
-        self._geo: Tensor | None = None
+        self._baked_sh: Tensor | None = None
+        self._colors: dict[str, Callable[[Tensor], Tensor]] = {}
         if isinstance(self.color, NeuralColor):
             self.color.field.to(self.device)
-            self._geo = self.color.geo_features(self.gaussians)
+            self._colors["neural"] = NeuralViewColors(self.color.field, self.gaussians.means)
 
     def __len__(self) -> int:
         """Number of Gaussians."""
         return len(self.gaussians)
 
-    def render(self, camera: Camera, background: Tensor | None = None) -> RasterOutput:
-        """Render one view: (3, H, W) image, depth, alpha."""
+    def baked_sh(self) -> Tensor:
+        """(N, K, 3) SH coefficients of the model's colours (float32, CPU; K = 16 when baked).
+
+        The exact SH of an SH-colour model; for neural colour the one given to
+        :meth:`use_baked_sh` (the trainer's export, fitted to the training directions too), else
+        a least-squares bake over sphere directions made here once (seconds for 50k Gaussians).
+        """
+        from sparsesplat.engine.color.models import SHColor
+        from sparsesplat.engine.train.recorder import model_sh
+
+        if self._baked_sh is None:
+            if isinstance(self.color, SHColor):
+                self._baked_sh = model_sh(self.gaussians, self.color, [])
+            else:
+                from sparsesplat.engine.export import bake_sh
+
+                fn = self.color.color_fn(self.gaussians)
+                n = len(self.gaussians)
+                self._baked_sh = bake_sh(fn, n, degree=3, device=self.device)
+        return self._baked_sh
+
+    def use_baked_sh(self, sh: Tensor) -> None:
+        """Serve ``baked`` renders with ``sh`` (N, K, 3), e.g. the SH of the run's PLY export."""
+        if sh.dim() != 3 or sh.shape[0] != len(self) or sh.shape[2] != 3:
+            raise CheckpointError(
+                f"baked SH of shape {tuple(sh.shape)} do not fit {len(self)} Gaussians"
+            )
+        self._baked_sh = sh.detach().float().cpu()
+        self._colors.pop("baked", None)
+
+    def _view_colors(self, mode: str) -> Callable[[Tensor], Tensor]:
+        """The per-view colour function of ``mode``, built on first use."""
+        from sparsesplat.engine.color.view_colors import BakedViewColors
+
+        if mode not in RENDER_MODES:
+            raise CheckpointError(f"render mode must be one of {RENDER_MODES}, got {mode!r}")
+        if mode not in self._colors:
+            if mode == "neural":  # an SH-colour model: its own coefficients are exact
+                g, color = self.gaussians, self.color
+                self._colors[mode] = lambda center: color.colors(g, center)
+            else:
+                self._colors[mode] = BakedViewColors(self.baked_sh(), self.gaussians.means)
+        return self._colors[mode]
+
+    def render(
+        self,
+        camera: Camera,
+        background: Tensor | None = None,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
+    ) -> RasterOutput:
+        """Render one view: (3, H, W) image, depth, alpha (forward only, no gradients)."""
         from sparsesplat.engine.raster import rasterize
-        from sparsesplat.engine.train.recorder import render_model
 
         cfg = self.config
         bg = self.background if background is None else torch.as_tensor(background).float()
-
-        raster = functools.partial(
-            rasterize, near=self.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
-        )
-
+        colors = self._view_colors(mode)
         cam = camera.to(self.device, torch.float32)
-        return render_model(self.gaussians, self.color, cam, bg.to(self.device), raster, self._geo)
+        g = self.gaussians
+        with torch.no_grad():
+            feats = colors(cam.center.to(g.means))
+            return rasterize(
+                g.means, g.log_scales, g.quats, g.opacity_logits, feats, cam,
+                bg.to(self.device), near=self.raster_near, eps2d=cfg.eps2d,
+                backend=cfg.raster_backend,
+            )  # fmt: skip
 
     def color_fn(self):  # type: ignore[no-untyped-def]
         """Per-Gaussian colours for arbitrary unit directions (for SH baking)."""

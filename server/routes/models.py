@@ -14,7 +14,7 @@ from pydantic import ValidationError
 from sparsesplat.api.cameras import AxisConvention, PinholeCamera, PoseDirection
 from sparsesplat.api.jobs import Job, JobState, ModelInfo
 from sparsesplat.api.names import ARTIFACT_FILES, ExportFormat
-from sparsesplat.api.renders import RenderOutput, RenderRequest
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, RenderOutput, RenderRequest
 from sparsesplat.server.deps import OwnerDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
 from sparsesplat.server.render_dispatch import NoRenderWorker, RenderFailed
@@ -29,7 +29,8 @@ EXPORTS = {
 """Export format → (artifact kind, media type, download name)."""
 
 
-def _own_model(service: ServiceState, owner: str, model_id: str) -> Job:
+def own_model(service: ServiceState, owner: str, model_id: str) -> Job:
+    """The succeeded job of ``model_id`` if ``owner`` may use it; ServiceError 404 / 409."""
     job = service.jobs.get(model_id, owner)
     if job is None:
         raise not_found("model", model_id)
@@ -45,7 +46,7 @@ def _own_model(service: ServiceState, owner: str, model_id: str) -> Job:
 @router.get("/{model_id}", response_model=ModelInfo, summary="Describe a trained model")
 def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
     """Size, final held-out metrics, exports and the cameras it was trained with."""
-    _own_model(service, owner, model_id)
+    own_model(service, owner, model_id)
     result = service.jobs.result(model_id) or {}
     cameras_file = service.storage.upload_dir(model_id) / "cameras.json"
     document = json.loads(cameras_file.read_text())
@@ -66,7 +67,8 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
     )
 
 
-def _check_size(service: ServiceState, request: RenderRequest) -> None:
+def check_render_size(service: ServiceState, request: RenderRequest) -> None:
+    """ServiceError 413 when the request asks for more cameras or pixels than allowed."""
     settings = service.settings
     if request.path is not None and len(request.path) > settings.max_path_cameras:
         raise ServiceError(
@@ -97,8 +99,8 @@ async def _render(
             f"more than {service.settings.renders_per_second:g} renders per second for this key",
             {"Retry-After": str(max(1, round(wait + 0.5)))},
         )  # fmt: skip
-    _check_size(service, request)
-    await asyncio.to_thread(_own_model, service, owner, model_id)
+    check_render_size(service, request)
+    await asyncio.to_thread(own_model, service, owner, model_id)
     started = time.perf_counter()
     try:
         answer = await service.renders.render(model_id, request)
@@ -145,6 +147,8 @@ async def render_model_get(
     height: int,
     output: RenderOutput = "png",
     downscale: Annotated[int, Query(ge=1, le=16)] = 1,
+    quality: Annotated[int, Query(ge=1, le=100)] = 90,
+    mode: RenderMode = DEFAULT_RENDER_MODE,
 ) -> Response:
     """The same render as the POST form, with the camera in query parameters."""
     try:
@@ -159,7 +163,9 @@ async def render_model_get(
             matrix=[values[i : i + 4] for i in range(0, 16, 4)],
             fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height,
         )  # fmt: skip
-        request = RenderRequest(camera=camera, output=output, downscale=downscale)
+        request = RenderRequest(
+            camera=camera, output=output, downscale=downscale, quality=quality, mode=mode
+        )
     except ValidationError as exc:
         raise invalid("invalid_camera", pydantic_message(exc, "camera")) from exc
     return await _render(service, owner, model_id, request)
@@ -174,7 +180,7 @@ def export_model(
 ) -> FileResponse:
     """``ply`` (INRIA 3DGS layout with baked SH colour; opens in standard viewers), ``splat``
     (antimatter15 layout) or ``checkpoint`` (sparsesplat's own, for resuming or rendering)."""
-    _own_model(service, owner, model_id)
+    own_model(service, owner, model_id)
     kind, media, name = EXPORTS[format]
     path = service.storage.artifact(model_id, kind)
     if not path.is_file():

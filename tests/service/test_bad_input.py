@@ -318,3 +318,28 @@ def test_render_request_validation(client: TestClient) -> None:
     assert response.status_code == 422 and "convention" in response.json()["message"]
     response = client.post(url, json={})
     assert response.status_code == 422 and "exactly one" in response.json()["message"]
+    camera = {**no_convention, "convention": "opencv"}
+    response = client.post(url, json={"camera": camera, "mode": "fast"})
+    assert response.status_code == 422 and "mode" in response.json()["message"]
+    query = {k: v for k, v in camera.items() if k != "matrix"}
+    query["matrix"] = ",".join(str(x) for row in camera["matrix"] for x in row)
+    response = client.get(url, params={**query, "mode": "fast"})
+    assert response.status_code == 422 and "mode" in response.json()["message"]
+    # A valid request for a model that does not exist yet: 409, nothing stored is touched.
+    assert client.get(url, params={**query, "mode": "baked"}).status_code == 409
+
+
+def test_live_view_of_a_job_without_model_closes_with_4409(client: TestClient) -> None:
+    from starlette.websockets import WebSocketDisconnect
+
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    live = client.websocket_connect(f"/v1/models/{job['id']}/live")
+    with live as ws, pytest.raises(WebSocketDisconnect) as closed:
+        ws.receive_bytes()
+    assert closed.value.code == 4409 and "queued" in closed.value.reason
+    live = client.websocket_connect("/v1/models/job_nope/live")
+    with live as ws, pytest.raises(WebSocketDisconnect) as closed:
+        ws.receive_bytes()
+    assert closed.value.code == 4404
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204
+    _nothing_left(client)

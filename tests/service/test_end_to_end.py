@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+from typing import Any
 
 import httpx
 import numpy as np
@@ -69,7 +70,20 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     # Same model, same camera, same kernel: equal up to one 8-bit step of rounding.
     assert np.abs(served - expected).max() <= 1
 
+    # The baked mode renders the SH of the run's .ply export (the trainer's bake).
+    from sparsesplat.engine.export.ply import read_ply
+
+    local = load_model(run / "run")
+    local.use_baked_sh(read_ply(run / "run" / "model.ply")["sh"])
+    baked_ref = local.render(view.camera, mode="baked").image.clamp(0, 1)
+    baked_ref = (baked_ref.permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.int16)
+    answer = httpx.post(f"{live.url}/v1/models/{job['id']}/render",
+                        json={"camera": camera, "mode": "baked"}, timeout=120)  # fmt: skip
+    baked = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), dtype=np.int16)
+    assert np.abs(baked - baked_ref).max() <= 1
+
     _check_outputs(live.url, job["id"], camera, served)
+    _check_live_view(live.url, job["id"], camera, served)
     assert model["background"] is not None and len(model["background"]) == 3
 
     # Uploaded images and the depth priors are served back (the web page shows them).
@@ -130,3 +144,54 @@ def _check_outputs(url: str, model_id: str, camera: dict, served: np.ndarray) ->
     assert path.headers["content-type"] == "application/zip"
     with zipfile.ZipFile(io.BytesIO(path.content)) as archive:
         assert archive.namelist() == ["0000.png", "0001.png"]
+
+
+def _check_live_view(url: str, model_id: str, camera: dict, served: np.ndarray) -> None:
+    """The live view's frames are the render API's images; stale poses are dropped, every pose
+    is accounted for; a bad pose is answered and the connection stays usable."""
+    from websockets.exceptions import ConnectionClosed
+
+    from sparsesplat.api.renders import unpack_live_frame
+
+    ws_url = url.replace("http://", "ws://") + f"/v1/models/{model_id}/live"
+
+    def frame(ws: Any) -> tuple[Any, np.ndarray]:
+        message = ws.recv(timeout=120)
+        assert isinstance(message, bytes), message
+        header, image = unpack_live_frame(message)
+        return header, np.asarray(Image.open(io.BytesIO(image)).convert("RGB"), np.int16)
+
+    with connect(ws_url, open_timeout=30, max_size=None) as ws:
+        ws.send(json.dumps({"camera": camera, "t": 1.5, "output": "png"}))
+        header, image = frame(ws)
+        assert (header.t, header.seq, header.media) == (1.5, 1, "image/png")
+        assert np.array_equal(image, served), "the live frame is the render API's image"
+
+        ws.send(json.dumps({"camera": {**camera, "fx": -1}, "t": 2}))
+        error = json.loads(ws.recv(timeout=30))
+        assert error["type"] == "error" and error["code"] == "invalid_pose"
+        assert "fx" in error["message"]
+
+        ws.send(json.dumps({"camera": camera, "t": 3, "mode": "baked", "output": "png"}))
+        header, baked = frame(ws)
+        assert header.t == 3 and header.seq == 2
+        answer = httpx.post(f"{url}/v1/models/{model_id}/render",
+                            json={"camera": camera, "mode": "baked"}, timeout=120)  # fmt: skip
+        want = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), np.int16)
+        assert np.array_equal(baked, want), "a baked live frame is the API's baked render"
+
+        # Six poses sent at once, each render taking milliseconds: the ones overtaken while a
+        # render runs are dropped, the newest is always rendered, in order.
+        for t in range(10, 16):
+            ws.send(json.dumps({"camera": camera, "t": t, "output": "jpeg"}))
+        times = []
+        while not times or times[-1] != 15:
+            header, _ = frame(ws)
+            times.append(header.t)
+        assert times == sorted(times) and header.media == "image/jpeg"
+        assert len(times) + header.dropped == 6 and header.dropped >= 1, (times, header)
+
+    nope = url.replace("http://", "ws://") + "/v1/models/nope/live"
+    with connect(nope) as ws, pytest.raises(ConnectionClosed) as closed:
+        ws.recv(timeout=30)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 4404

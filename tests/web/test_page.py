@@ -322,6 +322,7 @@ def test_viewer_draws_the_scene_and_follows_the_camera(
     context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
     page.goto(f"/#/jobs/{trained_job.id}/viewer")
     page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    page.uncheck("#viewer-live")  # on by default with software WebGL; this is the local drawing
     canvas = page.locator("#viewer-canvas")
     settle(page)
     before = pixels(canvas.screenshot()).astype(np.int16)[..., :3]
@@ -390,6 +391,59 @@ def test_viewer_server_render_equals_the_render_api(
     PinholeCamera.model_validate(free)
     expected = post_render(service.url, trained_job.id, free)
     assert np.array_equal(pixels(image_bytes(page, "#compare-server")), pixels(expected))
+    console.assert_clean()
+    context.close()
+
+
+def _live_frame_bytes(page: Any) -> bytes:
+    """The encoded image of the live view's last frame shown."""
+    return bytes(page.evaluate("() => Array.from(window.sparsesplat.view.live.lastFrame.bytes)"))
+
+
+@pytest.mark.shared_data
+def test_viewer_live_view_follows_the_orbit(
+    browser: Any, service: LiveService, trained_job: TrainedJob, artifacts: Path
+) -> None:
+    """On software WebGL the viewer shows server renders (the live view) by default: at a
+    pinned camera the frame is the render API's image for it; while orbiting, new frames keep
+    coming and none shown is older than 300 ms (pose sent to frame decoded, the server echoing
+    the pose's timestamp); stale poses are skipped, not queued."""
+    cameras = wire_cameras(service.url, trained_job.id)
+    index = next(i for i, c in enumerate(cameras) if c["split"] == "test")
+    context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
+    page.goto(f"/#/jobs/{trained_job.id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    assert page.is_checked("#viewer-live"), "software WebGL: the live view is the default"
+    page.click(f"#viewer-cameras button[data-index='{index}']")
+    page.wait_for_function(
+        "() => { const l = window.sparsesplat.view.live;"
+        " return l && l.lastFrame && l.lastFrame.header.t === l.lastSent; }"
+    )
+    camera = {k: cameras[index][k] for k in PINHOLE_FIELDS}
+    answer = httpx.post(
+        f"{service.url}/v1/models/{trained_job.id}/render",
+        json={"camera": camera, "output": "jpeg", "quality": 85}, timeout=120,
+    )  # fmt: skip
+    assert _live_frame_bytes(page) == answer.content, "the live frame is the API's render"
+    assert page.locator("#viewer-live-frame").is_visible()
+
+    before = page.evaluate("() => ({...window.sparsesplat.view.live.stats, ages: []})")
+    page.check("#viewer-spin")
+    time.sleep(6)
+    page.uncheck("#viewer-spin")
+    stats = page.evaluate("() => window.sparsesplat.view.live.stats")
+    moving = stats["ages"]
+    assert len(moving) >= 3, f"too few live frames while orbiting: {stats}"
+    assert max(moving) <= 300, f"a frame older than 300 ms was shown: {max(moving):.0f} ms"
+    assert stats["sent"] - before["sent"] >= stats["received"] - before["received"]
+    page.screenshot(path=str(artifacts / "viewer-live.png"))
+    # The still view after the orbit: the last pose's frame arrives and is shown.
+    page.wait_for_function(
+        "() => { const l = window.sparsesplat.view.live;"
+        " return l.lastFrame && l.lastFrame.header.t === l.lastSent; }"
+    )
+    page.uncheck("#viewer-live")
+    assert page.locator("#viewer-live-frame").is_hidden()
     console.assert_clean()
     context.close()
 
@@ -546,6 +600,7 @@ def test_viewer_frame_rate_with_50k_gaussians(
         page.goto(f"/#/jobs/{trained_job.id}/viewer")
         page.wait_for_selector("#viewer-canvas[data-ready='1']")
         assert "50,000" in page.text_content("#viewer-info")
+        page.uncheck("#viewer-live")  # the browser's own drawing is measured here
         results["canvas"] = page.evaluate("() => window.sparsesplat.view.size")
         results["renderer"] = page.evaluate("() => window.sparsesplat.view.stats.renderer")
         page.select_option("#viewer-detail", budget)
@@ -578,3 +633,78 @@ def test_viewer_frame_rate_with_50k_gaussians(
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(results, indent=1))
     print(json.dumps(results, indent=1))
+
+
+def _orbit_504x378(wire: dict[str, Any], n: int) -> list[dict[str, Any]]:
+    """``n`` OpenCV world-to-camera cameras at 504x378 orbiting from ``wire``'s pose."""
+    from sparsesplat.worker.bench_service import orbit_cameras
+
+    camera = PinholeCamera.model_validate({k: wire[k] for k in PINHOLE_FIELDS})
+    scale = 378 / wire["height"]
+    frame = {
+        "matrix": camera.world_to_camera_opencv(), "fx": wire["fx"] * scale,
+        "fy": wire["fy"] * scale, "cx": 252.0, "cy": 189.0, "width": 504, "height": 378,
+    }  # fmt: skip
+    return orbit_cameras(frame, n)
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+def test_live_view_frame_rate_at_504x378(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    """Frames per second of the live view in headless Chromium, orbiting at 504x378 a
+    50k-Gaussian model (the job's Gaussians swapped for the synthetic ones, its neural colour
+    kept) with a pose every 16 ms; written to bench-results/web-live.json. The page's own
+    LiveView (live.js) sends the poses and decodes the frames. Runs last: it changes the job."""
+    from tests.web.synthetic import replace_checkpoint_gaussians
+
+    replace_checkpoint_gaussians(service.data_dir / "jobs" / trained_job.id / "run" /
+                                 "checkpoint.pt", n=50_000)  # fmt: skip
+    wire = next(c for c in wire_cameras(service.url, trained_job.id) if c["split"] == "test")
+    orbit = _orbit_504x378(wire, 120)
+    # The render worker reloads the changed checkpoint on its next render: not timed.
+    answer = httpx.post(f"{service.url}/v1/models/{trained_job.id}/render",
+                        json={"camera": orbit[0]}, timeout=300)  # fmt: skip
+    assert answer.status_code == 200, answer.text
+    context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
+    page.goto("/")
+    load0 = os.getloadavg()[0]
+    stats = page.evaluate(
+        """async ({jobId, orbit, seconds}) => {
+            const { LiveView } = await import("/static/js/live.js");
+            const live = new LiveView(jobId, { onFrame: (bitmap) => bitmap.close() }).start();
+            await new Promise((resolve) => setTimeout(resolve, 500));
+            const start = live.stats.shown;
+            const t0 = performance.now();
+            let i = 0;
+            while (performance.now() - t0 < seconds * 1000) {
+                live.send(orbit[i++ % orbit.length]);
+                await new Promise((resolve) => setTimeout(resolve, 16));
+            }
+            const elapsed = (performance.now() - t0) / 1000;
+            live.stop();
+            return { ...live.stats, fps: (live.stats.shown - start) / elapsed, elapsed };
+        }""",
+        {"jobId": trained_job.id, "orbit": orbit, "seconds": 15},
+    )
+    ages = sorted(stats["ages"])
+    results = {
+        "gaussians": 50_000,
+        "size": "504x378",
+        "output": "jpeg q85, neural colour",
+        "fps": round(stats["fps"], 2),
+        "frame_age_p50_ms": round(ages[len(ages) // 2], 1) if ages else None,
+        "frame_age_max_ms": round(ages[-1], 1) if ages else None,
+        "poses_sent": stats["sent"],
+        "frames_received": stats["received"],
+        "frames_skipped_as_stale": stats["skipped"],
+        "load_average": round((load0 + os.getloadavg()[0]) / 2, 1),
+    }
+    out = REPO / "bench-results" / "web-live.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+    print(json.dumps(results, indent=1))
+    assert stats["shown"] > 0, "the live view showed no frame"
+    console.assert_clean()
+    context.close()

@@ -1,7 +1,9 @@
 // The viewer: the trained model's .ply export (baked colour) drawn in the browser by Spark, a
 // Gaussian-splat renderer for three.js, with orbit controls; the uploaded cameras drawn as
 // frusta to jump to; and a button that renders the current pose on the server (the neural
-// colour, exactly) to show beside the browser's drawing.
+// colour, exactly) to show beside the browser's drawing. With "live server view" (on by
+// default where WebGL is a software renderer, too slow for the real splat count) the server
+// renders the view as the camera moves (live.js) and the page shows those frames instead.
 
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
@@ -9,6 +11,7 @@ import { SparkRenderer, SplatMesh } from "@sparkjsdev/spark";
 import { download, request } from "./api.js";
 import { centreAndForward, openglCameraToWorld, orbitCentre, pinhole, placeThreeCamera, threeCameraToPinhole } from "./cameras.js";
 import { renderUrl } from "./job.js";
+import { LiveView } from "./live.js";
 import { el, fmtBytes, toast } from "./ui.js";
 
 const FRUSTUM_COLOURS = { train: 0x2563eb, test: 0xf97316 };
@@ -27,6 +30,8 @@ const DETAIL_OPTIONS = [0, 50000, 20000, 10000, 5000, 2000];
 /** The "every splat" budget: more than any model here, so every splat of at least a pixel is
  * drawn. */
 const ALL_SPLATS = 20_000_000;
+/** Largest live-view frame rendered at full size while the camera moves (504x378 and a bit). */
+const LIVE_FULL_SIZE_PIXELS = 240_000;
 /** Milliseconds after the last camera change before the view counts as still (snapshots). */
 const SETTLE_MS = 250;
 
@@ -77,10 +82,12 @@ export function mount(container, { jobId }) {
   const canvas = el("canvas#viewer-canvas", { tabindex: "0" });
   const fpsBox = el("div.overlay.fps#viewer-fps", {}, "");
   const loading = el("div.overlay.loading#viewer-loading", {}, "Loading the model…");
-  const wrap = el("div.canvas-wrap", {}, canvas, fpsBox, loading);
+  const liveFrame = el("canvas#viewer-live-frame", { hidden: true });
+  const wrap = el("div.canvas-wrap", {}, canvas, liveFrame, fpsBox, loading);
   const cameraList = el("div.camera-list#viewer-cameras");
   const renderButton = el("button#viewer-render", { type: "button", disabled: true }, "Render this view on the server");
   const spin = el("input#viewer-spin", { type: "checkbox" });
+  const liveToggle = el("input#viewer-live", { type: "checkbox" });
   const showFrusta = el("input#viewer-frusta", { type: "checkbox", checked: true });
   const detail = el(
     "select#viewer-detail",
@@ -110,6 +117,7 @@ export function mount(container, { jobId }) {
         cameraList,
         el("label.check", {}, showFrusta, " show camera frusta"),
         el("label.check", {}, spin, " auto-rotate"),
+        el("label.check", { title: "The server renders the view as the camera moves (neural colour, exact); the browser draws nothing. On by default with software WebGL." }, liveToggle, " live server view"),
         el("label", {}, "Background ", background),
         el("label", { title: "Fewer splats keep software WebGL interactive (Spark's level of detail); 'Render this view on the server' is always exact." }, "Draw ", detail),
         el("p", {}, renderButton),
@@ -128,6 +136,9 @@ export function mount(container, { jobId }) {
   let dirty = true;
   const gpu = isSoftwareRenderer(renderer);
   detail.value = String(gpu.software ? SOFTWARE_SPLATS : 0);
+  liveToggle.checked = gpu.software;
+  let live = null; // the LiveView while the live server view is on
+  let liveSentKey = null; // the pose last sent to it
   const spark = new SparkRenderer({
     renderer,
     preBlurAmount: PRE_BLUR,
@@ -148,7 +159,7 @@ export function mount(container, { jobId }) {
   let pinned = null; // the wire camera jumped to, until the user moves
   let size = { width: 640, height: 480 };
   let aspect = 4 / 3;
-  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0, renderer: gpu.name, software: gpu.software, drawn: Number(detail.value) || "all", moving: false, stillFrames: 0 };
+  const stats = { frames: 0, fps: 0, windowStart: performance.now(), windowFrames: 0, renderer: gpu.name, software: gpu.software, drawn: Number(detail.value) || "all", moving: false, stillFrames: 0, live: null, liveFps: 0, liveWindowShown: 0 };
   let lastChange = -Infinity;
   let interacting = false;
   let snapshotWaiters = [];
@@ -166,6 +177,8 @@ export function mount(container, { jobId }) {
     }
     size = { width, height };
     renderer.setSize(width, height, true);
+    liveFrame.style.width = `${width}px`;
+    liveFrame.style.height = `${height}px`;
     camera.aspect = width / height;
     camera.updateProjectionMatrix();
     dirty = true;
@@ -186,6 +199,19 @@ export function mount(container, { jobId }) {
       lastChange = now;
     }
     stats.moving = spin.checked || interacting || now - lastChange < SETTLE_MS;
+    if (live) {
+      // The server draws: send the pose when it changed; the browser draws only for snapshots.
+      const wire = currentCamera();
+      // While moving, a large canvas is rendered at half size (a quarter of the pixels); the
+      // still view is rendered at full size once the camera settles.
+      const downscale = stats.moving && wire.width * wire.height > LIVE_FULL_SIZE_PIXELS ? 2 : 1;
+      const key = `${JSON.stringify(wire)}/${downscale}`;
+      if (key !== liveSentKey) {
+        liveSentKey = key;
+        live.send(wire, { downscale });
+      }
+      if (!snapshotWaiters.length) dirty = false;
+    }
     if (dirty) {
       dirty = false;
       renderer.render(scene, camera);
@@ -203,11 +229,19 @@ export function mount(container, { jobId }) {
     }
     if (snapshotWaiters.length && !dirty && !stats.moving && !spark.sorting) dirty = true;
     if (now - stats.windowStart >= 1000) {
-      stats.fps = (stats.windowFrames * 1000) / (now - stats.windowStart);
+      const elapsed = now - stats.windowStart;
+      stats.fps = (stats.windowFrames * 1000) / elapsed;
       stats.windowStart = now;
       stats.windowFrames = 0;
-      const drawn = stats.drawn === "all" ? "all splats" : `≤${stats.drawn.toLocaleString()} splats`;
-      fpsBox.textContent = stats.fps > 0 ? `${stats.fps.toFixed(1)} fps · ${drawn}` : "still";
+      if (live) {
+        const shown = live.stats.shown - stats.liveWindowShown;
+        stats.liveWindowShown = live.stats.shown;
+        stats.liveFps = (shown * 1000) / elapsed;
+        fpsBox.textContent = shown > 0 ? `server ${stats.liveFps.toFixed(1)} fps · neural colour` : "server · still";
+      } else {
+        const drawn = stats.drawn === "all" ? "all splats" : `≤${stats.drawn.toLocaleString()} splats`;
+        fpsBox.textContent = stats.fps > 0 ? `${stats.fps.toFixed(1)} fps · ${drawn}` : "still";
+      }
     }
   }
 
@@ -279,6 +313,31 @@ export function mount(container, { jobId }) {
     }
   }
 
+  /** Start or stop the live server view (the checkbox's state). */
+  function setLive() {
+    if (liveToggle.checked && !live && model) {
+      live = new LiveView(jobId, {
+        onFrame: (bitmap) => {
+          if (!live) return bitmap.close();
+          liveFrame.width = bitmap.width;
+          liveFrame.height = bitmap.height;
+          liveFrame.getContext("2d").drawImage(bitmap, 0, 0);
+          bitmap.close();
+          liveFrame.hidden = false;
+        },
+        onStatus: (status) => (liveFrame.dataset.status = status),
+      }).start();
+      stats.live = live.stats;
+      stats.liveWindowShown = 0;
+      liveSentKey = null;
+    } else if (!liveToggle.checked && live) {
+      live.stop();
+      live = null;
+      liveFrame.hidden = true;
+      dirty = true;
+    }
+  }
+
   function setBackground() {
     scene.background = background.value === "auto" ? backgroundFor(job) : new THREE.Color(BACKGROUNDS[background.value]);
     dirty = true;
@@ -346,6 +405,7 @@ export function mount(container, { jobId }) {
     );
     jumpTo(cameras.findIndex((c) => c.split !== "test"));
     renderer.setAnimationLoop(tick);
+    setLive(); // the server's frames need no download: they show while the .ply loads
 
     const started = performance.now();
     let bytes;
@@ -403,6 +463,7 @@ export function mount(container, { jobId }) {
   });
   background.addEventListener("change", setBackground);
   detail.addEventListener("change", applyDetail);
+  liveToggle.addEventListener("change", setLive);
 
   renderButton.addEventListener("click", renderExact);
   const onResize = () => {
@@ -437,6 +498,9 @@ export function mount(container, { jobId }) {
     get cameras() {
       return cameras;
     },
+    get live() {
+      return live;
+    },
     jumpTo,
     currentCamera,
     renderExact,
@@ -445,6 +509,7 @@ export function mount(container, { jobId }) {
       unmounted = true;
       window.removeEventListener("resize", onResize);
       renderer.setAnimationLoop(null);
+      if (live) live.stop();
       if (controls) controls.dispose();
       if (mesh) mesh.dispose();
 
