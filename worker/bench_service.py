@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import json
 import os
 import signal
@@ -63,6 +62,7 @@ def _prepare(data_dir: Path, n_gaussians: int) -> tuple[str, list[dict[str, Any]
     synthetic scene started from that many points), stored as the service stores models."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
+    from sparsesplat.engine.train.overrides import apply_overrides
 
     scene, _ = make_scene(seed=0, width=WIDTH, height=HEIGHT, n_train=3, n_test=2,
                           n_gaussians=400)  # fmt: skip
@@ -71,10 +71,10 @@ def _prepare(data_dir: Path, n_gaussians: int) -> tuple[str, list[dict[str, Any]
     store, storage = JobStore(engine), Storage(data_dir)
     job_id = new_job_id()
     frames = _write_upload(storage.upload_dir(job_id), scene)
-    config = dataclasses.replace(
+    config = apply_overrides(
         preset("default", depth_prior="none", init_points=n_gaussians, eval_lpips=False),
-        iterations=1, densify_until=0,
-    )  # fmt: skip
+        {"iterations": 1, "densify.until": 0},
+    )
     Trainer(scene, config, None, storage.run_dir(job_id)).run()
     store.create(job_id, "anonymous", JobSpec(), 3, 2)
     claim = store.claim("bench", 60)

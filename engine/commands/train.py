@@ -31,7 +31,7 @@ PRIOR_KINDS = (
 """The ``--prior`` kinds, one line each for ``--help``."""
 
 PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
-"""Presets in the order ``--help`` lists them (``engine.train.config.PRESETS``)."""
+"""Presets in the order ``--help`` lists them (``engine.train.presets.PRESETS``)."""
 
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe; "
@@ -45,7 +45,7 @@ _PRESET_HELP = {
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
     "recipe; 1500 iterations",
 }
-# When to use each preset and its default run length. Kept here, not in engine.train.config,
+# When to use each preset and its default run length. Kept here, not in engine.train.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names
 # exactly the presets that exist, with their PRESET_ITERATIONS.
 
@@ -92,8 +92,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="SECONDS",
-        help="train for about this many seconds instead: a 10-iteration probe times this "
-        "scene and the preset's schedule is compressed to fit",
+        help="train until this many seconds of training are spent instead (a deadline); the "
+        "preset's schedule (LR decay, densification, depth starts) follows the elapsed fraction",
     )
     parser.add_argument(
         "--prior",
@@ -107,8 +107,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", default=None, help="continue from this checkpoint")
     parser.add_argument(
         "--set", action="append", default=[], metavar="FIELD=JSON",
-        help="override any TrainConfig field, value as JSON (repeatable), e.g. "
-        "--set background=white --set lambda_dssim=0.3",
+        help="override any TrainConfig field by its dotted name, value as JSON (repeatable), "
+        "e.g. --set background=white --set photometric.lambda_dssim=0.3 --set depth.soft_start=500",
     )  # fmt: skip
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object per line (no progress bar)"
@@ -116,23 +116,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    from sparsesplat.engine.train.config import ConfigError, parse_override
+def run_spec(args: argparse.Namespace) -> Any:
+    """The :class:`RunSpec` the options ask for (``--set``, ``--seed``, ``--prior``,
+    ``--no-depth``, ``--iterations``, ``--time-budget``, ``--preset``)."""
+    from sparsesplat.engine.train.config import ConfigError
+    from sparsesplat.engine.train.overrides import parse_override, resolve
+    from sparsesplat.engine.train.run import RunSpec
 
-    out: dict[str, Any] = {}
+    overrides: dict[str, Any] = {}
+    iterations = args.iterations
     for item in args.set:
         try:
             key, value = parse_override(item)
+            name = resolve(key)
         except ConfigError as exc:
             raise CommandError(f"--set {exc}") from None
-        out[key] = value
+        if name == "iterations":  # --set iterations=N means --iterations N
+            if iterations is not None:
+                raise CommandError("give either --iterations or --set iterations=N, not both")
+            iterations = value  # its type is checked by the preset
+            continue
+        overrides[key] = value
+    if isinstance(iterations, int) and iterations < 1:
+        raise CommandError(f"--iterations must be >= 1, got {iterations}")
     if args.seed is not None:
-        out["seed"] = args.seed
+        overrides["seed"] = args.seed
     if args.prior is not None:
-        out["depth_prior"] = args.prior
+        overrides["depth.prior"] = args.prior
     if args.no_depth:
-        out["depth_prior"] = "none"
-    return out
+        overrides["depth.prior"] = "none"
+    if args.time_budget is not None:
+        if not (math.isfinite(args.time_budget) and args.time_budget > 0):
+            raise CommandError(f"--time-budget must be > 0 seconds, got {args.time_budget}")
+        if iterations is not None:
+            raise CommandError("give either --iterations or --time-budget, not both")
+    return RunSpec(args.preset, overrides, iterations, args.time_budget)
 
 
 def _clock(seconds: float) -> str:
@@ -231,7 +249,9 @@ def _summary_text(metrics: dict[str, Any], artifacts: dict[str, str]) -> str:
         f"PSNR {fmt('psnr', '.2f')} dB"
         + (f" (constant background: {base:.2f} dB)" if base is not None else "")
         + f"  SSIM {fmt('ssim', '.3f')}  LPIPS {fmt('lpips', '.3f')}  AVGE {fmt('avge', '.3f')}",
-        f"{metrics.get('iterations')} iterations in {fmt('seconds', '.0f')} s of training, "
+        f"{metrics.get('iterations')} iterations in {fmt('seconds', '.0f')} s of training"
+        + (f" (budget {budget:g} s)" if (budget := metrics.get("time_budget_s")) else "")
+        + ", "
         f"{metrics.get('n_gaussians')} Gaussians, preset {metrics.get('preset')}",
     ]
     lines += [f"{kind:12s} {path}" for kind, path in artifacts.items()]
@@ -254,8 +274,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.datasets.common import choose_preset
-    from sparsesplat.engine.train import ProgressRecord, StateChange, Trainer, preset
+    from sparsesplat.engine.train import ProgressRecord, StateChange
+    from sparsesplat.engine.train.run import RunPlan, build_run
 
     out = sys.stdout
 
@@ -265,43 +285,22 @@ def _run(args: argparse.Namespace) -> int:
             out.flush()
 
     device = check_device(args.device)
-    overrides = _overrides(args)
-    if "iterations" in overrides:  # --set iterations=N means --iterations N
-        if args.iterations is not None:
-            raise CommandError("give either --iterations or --set iterations=N, not both")
-        args.iterations = overrides.pop("iterations")  # its type is checked by preset()
-    if isinstance(args.iterations, int) and args.iterations < 1:
-        raise CommandError(f"--iterations must be >= 1, got {args.iterations}")
-    if args.time_budget is not None:
-        if not (math.isfinite(args.time_budget) and args.time_budget > 0):
-            raise CommandError(f"--time-budget must be > 0 seconds, got {args.time_budget}")
-        if args.iterations is not None:
-            raise CommandError("give either --iterations or --time-budget, not both")
-        if args.resume:
-            raise CommandError("--time-budget cannot be combined with --resume")
+    spec = run_spec(args)
     scene = load_scene(args.scene, views=args.views)
-    if args.preset:
-        name, reason = args.preset, "--preset"
-    else:
-        name, reason = choose_preset(scene)
-    config = preset(name, iterations=args.iterations, **overrides)
-    emit({"kind": "preset", "preset": name, "reason": reason})
-    if not args.json and not args.quiet:
-        print(f"preset {name}: {reason}", file=sys.stderr, flush=True)
-    prepare_native(device, color=config.color_model == "neural")
-    priors = None
-    if config.uses_depth:
-        from sparsesplat.engine.priors import compute_priors
+    talk = not args.json and not args.quiet
 
-        priors = compute_priors(scene, config.depth_prior)
-    if args.time_budget is not None:
-        from sparsesplat.engine.train.budget import iterations_for_budget
-
-        n = iterations_for_budget(scene, config, priors, args.time_budget, device)
-        config = preset(name, iterations=n, **overrides)
-        emit({"kind": "budget", "seconds": args.time_budget, "iterations": n})
-        if not args.json and not args.quiet:
-            print(f"time budget {args.time_budget:g} s: {n} iterations", file=sys.stderr)
+    def announce(plan: RunPlan) -> None:
+        config = plan.config
+        reason = plan.reason or "--preset"
+        emit({"kind": "preset", "preset": config.preset, "reason": reason})
+        if talk:
+            print(f"preset {config.preset}: {reason}", file=sys.stderr, flush=True)
+        if config.time_budget_s is not None:
+            budget = config.time_budget_s
+            emit({"kind": "budget", "seconds": budget, "schedule_iterations": config.iterations})
+            if talk:
+                print(f"time budget {budget:g} s: training until it is spent", file=sys.stderr)
+        prepare_native(device, color=config.color.model == "neural")
 
     bar: ProgressLine | None = None
 
@@ -313,8 +312,17 @@ def _run(args: argparse.Namespace) -> int:
         elif isinstance(event, StateChange):
             emit(event.to_dict())
 
-    trainer = Trainer(scene, config, priors, args.out, show, device, args.resume)
-    if not args.json and not args.quiet:
+    run = build_run(
+        spec,
+        scene,
+        out_dir=args.out,
+        on_progress=show,
+        device=device,
+        resume_from=args.resume,
+        on_plan=announce,
+    )
+    trainer, config = run.trainer, run.plan.config
+    if talk and config.time_budget_s is None:
         bar = ProgressLine(config.iterations, trainer.background_psnr(), sys.stderr)
         bar.follow(trainer)
     try:

@@ -83,7 +83,7 @@ class TrainedModel:
         bg = self.background if background is None else torch.as_tensor(background).float()
 
         raster = functools.partial(
-            rasterize, near=self.raster_near, eps2d=cfg.eps2d, backend=cfg.raster_backend
+            rasterize, near=self.raster_near, eps2d=cfg.raster.eps2d, backend=cfg.raster.backend
         )
 
         cam = camera.to(self.device, torch.float32)

@@ -57,7 +57,7 @@ def test_render_command_writes_png(tmp_path: Path) -> None:
 def test_train_command_options() -> None:
     args = _parse(train_cmd, ["scene", "--out", "o", "--no-depth", "--iterations", "7",
                               "--set", "lambda_dssim=0.3"])  # fmt: skip
-    assert train_cmd._overrides(args) == {
-        "lambda_dssim": 0.3, "depth_prior": "none"
-    }  # fmt: skip
+    spec = train_cmd.run_spec(args)
+    assert spec.overrides == {"lambda_dssim": 0.3, "depth.prior": "none"}
+    assert (spec.iterations, spec.time_budget_s, spec.preset) == (7, None, None)
     assert torch.is_tensor(torch.zeros(1))
