@@ -2,9 +2,11 @@
 
 Public API used by the workers, the CLI and the benchmarks::
 
-    from sparsesplat.engine.train import build_run
-    trainer = build_run(RunRequest(scene, preset="llff", overrides={"depth.prior": "none"}))
-    result = trainer.run()
+    from sparsesplat.engine.train.run import RunSpec, build_run
+    run = build_run(RunSpec("llff", {"depth.prior": "none"}), scene, out_dir="runs/x")
+    result = run.trainer.run()
+
+or, one level down, ``Trainer(scene, preset("llff"), priors, out_dir).run()``.
 """
 
 from sparsesplat.engine.train.checkpoint import (
