@@ -162,11 +162,22 @@ def _clock(seconds: float) -> str:
 class ProgressLine:
     """The default output: one line on ``stream`` redrawn in place (a TTY) with iteration /
     total, elapsed, estimated remaining and the latest held-out PSNR beside the constant-
-    background baseline; on a non-TTY stream, one line per held-out record instead."""
+    background baseline; on a non-TTY stream, one line per held-out record instead. Under a
+    time budget the bar and the time left follow the budget's training seconds."""
 
-    def __init__(self, total: int, baseline: float | None, stream: TextIO) -> None:
-        """``baseline``: the PSNR of a constant background image (None: no held-out views)."""
+    def __init__(
+        self,
+        total: int,
+        baseline: float | None,
+        stream: TextIO,
+        budget_s: float | None = None,
+    ) -> None:
+        """``baseline``: the PSNR of a constant background image (None: no held-out views);
+        ``budget_s``: the run's time budget (None: it runs ``total`` iterations)."""
         self.total = total
+        self.budget_s = budget_s
+        self.trained_s = 0.0
+        """The trainer's training seconds so far (what a budget counts)."""
         self.baseline = baseline
         self.stream = stream
         self.tty = stream.isatty()
@@ -184,9 +195,14 @@ class ProgressLine:
         elapsed = time.monotonic() - self.start
         left = elapsed / done * (self.total - self.iteration) if done > 0 else None
         frac = self.iteration / self.total if self.total else 1.0
+        count = f"{self.iteration}/{self.total}"
+        if self.budget_s is not None:
+            frac = min(self.trained_s / self.budget_s, 1.0)
+            left = max(self.budget_s - self.trained_s, 0.0)
+            count = f"{self.iteration} it"
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         parts = [
-            f"{self.iteration}/{self.total} [{bar}]",
+            f"{count} [{bar}]",
             f"elapsed {_clock(elapsed)}",
             f"left {_clock(left) if left is not None else '?'}",
         ]
@@ -205,9 +221,10 @@ class ProgressLine:
         self.stream.write("\r" + line + " " * pad + ("\n" if final else ""))
         self.stream.flush()
 
-    def record(self, iteration: int, psnr: float | None) -> None:
-        """A held-out record arrived."""
+    def record(self, iteration: int, psnr: float | None, trained_s: float = 0.0) -> None:
+        """A held-out record arrived (``trained_s``: its training seconds)."""
         self.iteration = iteration
+        self.trained_s = max(self.trained_s, trained_s)
         if psnr is not None:
             self.psnr = psnr
         if self.tty:
@@ -225,6 +242,7 @@ class ProgressLine:
         def loop() -> None:
             while not self._stop.wait(0.5):
                 self.iteration = trainer.iteration
+                self.trained_s = trainer.elapsed_s
                 self.draw()
 
         self._thread = threading.Thread(target=loop, daemon=True)
@@ -308,7 +326,7 @@ def _run(args: argparse.Namespace) -> int:
         if isinstance(event, ProgressRecord):
             emit(event.to_dict())
             if bar is not None:
-                bar.record(event.iteration, event.psnr)
+                bar.record(event.iteration, event.psnr, event.elapsed_s)
         elif isinstance(event, StateChange):
             emit(event.to_dict())
 
@@ -322,8 +340,9 @@ def _run(args: argparse.Namespace) -> int:
         on_plan=announce,
     )
     trainer, config = run.trainer, run.plan.config
-    if talk and config.time_budget_s is None:
-        bar = ProgressLine(config.iterations, trainer.background_psnr(), sys.stderr)
+    if talk:
+        baseline = trainer.background_psnr()
+        bar = ProgressLine(config.iterations, baseline, sys.stderr, config.time_budget_s)
         bar.follow(trainer)
     try:
         result = trainer.run()
