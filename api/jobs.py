@@ -114,10 +114,11 @@ class JobSpec(BaseModel):
         if not isinstance(data, dict):
             return data
         data = dict(data)
-        if "record_interval_s" in data:
+        old = data.pop("record_interval_s", None)
+        if old is not None:
             if data.get("eval_interval_s") is not None:
                 raise ValueError("give either 'eval_interval_s' or 'record_interval_s', not both")
-            data["eval_interval_s"] = data.pop("record_interval_s")
+            data["eval_interval_s"] = old
         if data.get("depth_prior") == "uploaded":
             data["depth_prior"] = "user"
         return data

@@ -496,10 +496,10 @@ class TrainConfig:
         budget = self.time_budget_s
         if budget is not None and not (math.isfinite(budget) and budget > 0):
             raise ConfigError(f"time_budget_s must be a positive number of seconds, got {budget}")
-        for section in dataclasses.fields(self):
-            check = getattr(getattr(self, section.name), "validate", None)
-            if check is not None and dataclasses.is_dataclass(getattr(self, section.name)):
-                check()
+        for item in dataclasses.fields(self):
+            section = getattr(self, item.name)
+            if dataclasses.is_dataclass(section) and hasattr(section, "validate"):
+                section.validate()
         if self.background is not None and (
             len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background)
         ):
