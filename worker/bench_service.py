@@ -178,7 +178,7 @@ def _submit_and_time(base: str, upload: Path) -> tuple[str, dict[str, float]]:
     for frame in cameras["frames"]:
         path = upload / frame["image"]
         files.append(("images", (path.name, path.read_bytes(), "image/png")))
-    spec = {"iterations": 100000, "depth_prior": "none", "record_interval_s": 3600}
+    spec = {"iterations": 100000, "depth_prior": "none", "eval_interval_s": 3600}
     files.append(("spec", (None, json.dumps(spec))))
     t0 = time.perf_counter()
     job = httpx.post(base + "/v1/jobs", files=files, timeout=60).json()
