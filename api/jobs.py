@@ -48,9 +48,9 @@ class JobSpec(BaseModel):
     preset: PresetName | None = None
     """Training recipe; None picks one from the scene (background and camera layout)."""
     depth_prior: str | None = None
-    """Depth prior: ``pydnet`` (bundled), ``plane_sweep``, ``uploaded`` (the depth maps sent
-    with the images), ``none``, or ``onnx:NAME`` for a MiDaS/DPT ONNX file in the server's
-    models directory. None: the preset's."""
+    """Depth prior: ``pydnet`` (bundled), ``plane_sweep``, ``user`` (the depth maps sent
+    with the images; ``uploaded`` is its deprecated spelling), ``none``, or ``onnx:NAME`` for a
+    MiDaS/DPT ONNX file in the server's models directory. None: the preset's."""
     color_model: ColorModelName | None = None
     """Colour model; None: the preset's (neural)."""
     hard_depth: bool | None = None
@@ -63,11 +63,12 @@ class JobSpec(BaseModel):
     """Iterations to train; None: the preset's default (1500 for every preset). The preset's
     6000-iteration reference schedule is compressed to the length asked for."""
     time_budget_s: float | None = Field(default=None, gt=0, le=7 * 24 * 3600)
-    """Training seconds to aim for instead of ``iterations``: the schedule is compressed to
-    fit, from the iteration cost measured on this scene at the start of the run."""
-    record_interval_s: float | None = Field(default=None, gt=0, le=24 * 3600)
+    """Train until this many training seconds are spent instead of for ``iterations`` (a
+    deadline): the preset's schedule (learning-rate decay, densification, depth starts) follows
+    the elapsed fraction of the budget."""
+    eval_interval_s: float | None = Field(default=None, gt=0, le=24 * 3600)
     """Training seconds between held-out error records (the error-against-time curve);
-    None: the preset's (60 s)."""
+    None: the preset's (60 s). ``record_interval_s`` is its deprecated spelling."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
     init: InitName | None = None
@@ -89,6 +90,27 @@ class JobSpec(BaseModel):
     """Delete Gaussians within half the scene's near bound of its render path (LLFF: the
     spiral through every pose) in training, and leave those near a held-out camera out of
     its evaluation; None: the preset's."""
+    overrides: dict[str, Any] | None = None
+    """Any other training setting by its dotted name (as ``sparsesplat train --set``), e.g.
+    ``{"depth.soft_start": 500, "photometric.lambda_dssim": 0.3}``; applied after the fields
+    above and checked by the trainer when the job starts (a bad name or value fails the job
+    with the field named)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _deprecated_spellings(cls, data: Any) -> Any:
+        # Stored jobs and older clients use the names of earlier versions.
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        old = data.pop("record_interval_s", None)
+        if old is not None:
+            if data.get("eval_interval_s") is not None:
+                raise ValueError("give either 'eval_interval_s' or 'record_interval_s', not both")
+            data["eval_interval_s"] = old
+        if data.get("depth_prior") == "uploaded":
+            data["depth_prior"] = "user"
+        return data
 
     @model_validator(mode="after")
     def _one_length(self) -> JobSpec:
@@ -213,7 +235,8 @@ class ModelInfo(BaseModel):
     iterations: int
     """Iterations it was trained for."""
     metrics: dict[str, float | None]
-    """Final held-out metrics (psnr, ssim, lpips, avge)."""
+    """Final held-out metrics (psnr, ssim, lpips, avge), the training ``seconds`` used and,
+    for a job with a time budget, ``time_budget_s`` (budget against used)."""
     exports: list[str]
     """Available export formats (``ply``, ``splat``, ``checkpoint``)."""
     cameras: list[dict[str, Any]]

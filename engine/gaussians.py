@@ -272,6 +272,16 @@ class Gaussians:
             self._reset_stats()
         return {"cloned": n_clone, "split": n_split, "pruned": n_pruned}
 
+    def decay_opacity(self, factor: float) -> None:
+        """Scale every opacity by ``factor`` in (0, 1] (on the logits, in place, so an
+        optimizer's moments stay with their rows)."""
+        with torch.no_grad():
+            x = self.opacity_logits
+            # logit(f p) = log f + log p - log(1 - f p) and log p = x - softplus(x): finite
+            # for every float32 x (a plain logit of f * sigmoid(x) gives -inf once p underflows).
+            shift = math.log(factor) - nn.functional.softplus(x)
+            x.add_(shift - torch.log1p(-factor * torch.sigmoid(x)))
+
     def reset_opacity(self, optimizer: torch.optim.Optimizer | None, ceiling: float = 0.01) -> None:
         """Clamp opacities to at most ``ceiling`` and zero their Adam moments (3DGS reset)."""
         with torch.no_grad():

@@ -245,8 +245,8 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
         raise invalid(
             "unlisted_image", f"uploaded image(s) not in cameras.json: {', '.join(extra[:10])}"
         )
-    if spec.depth_prior == "uploaded" and not any(f.depth for f in cameras.frames):
-        raise invalid("missing_depth", "depth_prior 'uploaded' needs frames with a 'depth' file")
+    if spec.depth_prior == "user" and not any(f.depth for f in cameras.frames):
+        raise invalid("missing_depth", "depth_prior 'user' needs frames with a 'depth' file")
     (staging / "images").mkdir()
     frames: list[dict[str, Any]] = []
     for index, frame in enumerate(cameras.frames):

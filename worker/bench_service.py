@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import json
 import os
 import signal
@@ -70,6 +69,7 @@ def _prepare(
     stores models (checkpoint and exports)."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
+    from sparsesplat.engine.train.overrides import apply_overrides
 
     scene, _ = make_scene(seed=0, width=WIDTH, height=HEIGHT, n_train=3, n_test=2,
                           n_gaussians=400)  # fmt: skip
@@ -78,10 +78,10 @@ def _prepare(
     store, storage = JobStore(engine), Storage(data_dir)
     job_id = new_job_id()
     frames = _write_upload(storage.upload_dir(job_id), scene)
-    config = dataclasses.replace(
+    config = apply_overrides(
         preset("default", depth_prior="none", init_points=n_gaussians, eval_lpips=False),
-        iterations=iterations, densify_until=0,
-    )  # fmt: skip
+        {"iterations": iterations, "densify.until": 0},
+    )
     trained = Trainer(scene, config, None, storage.run_dir(job_id)).run()
     print(f"# trained {iterations} iterations: {trained.n_gaussians} Gaussians", flush=True)
     store.create(job_id, "anonymous", JobSpec(), 3, 2)
@@ -261,7 +261,7 @@ def _submit_and_time(base: str, upload: Path) -> tuple[str, dict[str, float]]:
     for frame in cameras["frames"]:
         path = upload / frame["image"]
         files.append(("images", (path.name, path.read_bytes(), "image/png")))
-    spec = {"iterations": 100000, "depth_prior": "none", "record_interval_s": 3600}
+    spec = {"iterations": 100000, "depth_prior": "none", "eval_interval_s": 3600}
     files.append(("spec", (None, json.dumps(spec))))
     t0 = time.perf_counter()
     job = httpx.post(base + "/v1/jobs", files=files, timeout=60).json()

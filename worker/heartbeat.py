@@ -41,6 +41,7 @@ class JobHeartbeat:
         """Set when the worker process was asked to stop (the job goes back to the queue)."""
         self._trainer: Any = None
         self._total: int | None = None
+        self._budget_s: float | None = None
         self._phase = "preparing"
         self._record: Record | None = None
         self._preset: tuple[str, str | None] | None = None
@@ -63,10 +64,12 @@ class JobHeartbeat:
         except Exception:  # the outcome is stored next; a stale progress is not worth failing it
             log.warning("final heartbeat failed", exc_info=True, extra={"job_id": self.job_id})
 
-    def attach(self, trainer: Any, total: int) -> None:
-        """Follow ``trainer`` (reads its iteration and seconds; sets its stop flag)."""
+    def attach(self, trainer: Any, total: int | None, budget_s: float | None = None) -> None:
+        """Follow ``trainer`` (reads its iteration and seconds; sets its stop flag). ``total``:
+        the iterations it will do; None under a time budget of ``budget_s`` seconds."""
         self._trainer = trainer
         self._total = total
+        self._budget_s = budget_s
         if self.cancel_requested or self.lost or self.shutting_down:
             trainer.stop_requested = True
 
@@ -93,7 +96,9 @@ class JobHeartbeat:
         iteration = int(getattr(trainer, "iteration", 0)) if trainer is not None else 0
         elapsed = float(getattr(trainer, "elapsed_s", 0.0)) if trainer is not None else 0.0
         eta = None
-        if self._total and iteration > 0:
+        if self._budget_s is not None:  # a deadline: the training seconds left
+            eta = max(self._budget_s - elapsed, 0.0)
+        elif self._total and iteration > 0:
             eta = elapsed / iteration * max(self._total - iteration, 0)
         return Progress(
             iteration=iteration,

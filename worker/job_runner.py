@@ -7,7 +7,6 @@ trainer to stop when the job was cancelled.
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,47 +33,50 @@ class Outcome:
     """Final metrics and sizes when it succeeded."""
 
 
-def build_config(spec: JobSpec, scene: Any) -> tuple[Any, str | None]:
-    """The engine TrainConfig a spec asks for, and why its preset was chosen (None when the
-    spec named it); the preset's reference schedule is compressed to the spec's length."""
-    from sparsesplat.engine.train import preset
+SPEC_SWITCHES = {
+    "depth_prior": "depth.prior",
+    "color_model": "color.model",
+    "hard_depth": "depth.hard",
+    "soft_depth": "depth.soft",
+    "background": "background",
+    "init": "init.method",
+    "dropout": "dropout.enabled",
+    "dtu_background": "dtu.enabled",
+    "consistency_weight": "consistency.weight",
+    "near_prune": "near_prune.enabled",
+    "depth_min_agreement": "depth.min_agreement",
+    "eval_interval_s": "record.eval_interval_s",
+}
+"""The job spec's switches → the training config field each sets (when not None)."""
 
-    reason = None
-    name: str
-    if spec.preset is not None:
-        name = spec.preset
-    else:
-        name, reason = _preset_for(scene)
+
+def run_spec(spec: JobSpec, settings: Settings | None = None) -> Any:
+    """The engine's RunSpec for ``spec``: its switches, then its ``overrides``, then (with
+    ``settings``) the deployment's thread count and checkpoint cadence, which are the
+    deployment's and not the job's."""
+    from sparsesplat.engine.train.run import RunSpec
+
     overrides: dict[str, Any] = {"seed": spec.seed}
-    for key in (
-        "depth_prior",
-        "color_model",
-        "hard_depth",
-        "soft_depth",
-        "background",
-        "init",
-        "dropout",
-        "dtu_background",
-        "consistency_weight",
-        "near_prune",
-        "depth_min_agreement",
-    ):
+    for key, name in SPEC_SWITCHES.items():
         value = getattr(spec, key)
         if value is not None:
-            overrides[key] = "user" if (key == "depth_prior" and value == "uploaded") else value
-    if spec.record_interval_s is not None:
-        overrides["eval_interval_s"] = spec.record_interval_s
-    config = preset(name, iterations=spec.iterations, **overrides)
-    return config, reason
+            overrides[name] = value
+    overrides.update(spec.overrides or {})
+    if settings is not None:
+        overrides["threads"] = settings.torch_threads
+        overrides["record.checkpoint_interval_s"] = settings.checkpoint_interval_s
+    return RunSpec(spec.preset, overrides, spec.iterations, spec.time_budget_s)
 
 
-def _preset_for(scene: Any) -> tuple[str, str]:
-    """The engine's choice from the scene's background and camera layout, and why."""
-    from sparsesplat.engine.datasets.common import choose_preset
+def build_config(
+    spec: JobSpec, scene: Any, settings: Settings | None = None
+) -> tuple[Any, str | None]:
+    """The engine TrainConfig a spec asks for and why its preset was chosen from ``scene``
+    (None when the spec named it): the run recipe's plan, as the job will train it."""
+    from sparsesplat.engine.train.run import plan_run
 
-    name, reason = choose_preset(scene)
-    log.info("preset chosen", extra={"preset": name, "reason": reason})
-    return name, reason
+    plan = plan_run(run_spec(spec, settings), scene)
+    return plan.config, plan.reason
 
 
 def run_job(
@@ -108,35 +110,25 @@ def _train(
     beat: JobHeartbeat,
 ) -> Outcome:
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train import ProgressRecord, StateChange, Trainer
-    from sparsesplat.engine.train.budget import iterations_for_budget
+    from sparsesplat.engine.train import ProgressRecord, StateChange
     from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME
+    from sparsesplat.engine.train.run import RunPlan, build_run
 
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
     beat.set_phase("preparing")
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
-    config, reason = build_config(spec, scene)
-    beat.set_preset(config.preset, reason)
-    config = _with_service_settings(config, settings)
-    priors = None
-    if config.uses_depth:
-        from sparsesplat.engine.priors import compute_priors
 
-        beat.set_phase("depth prior")
-        priors = compute_priors(
-            scene, config.depth_prior, cache_dir=run_dir / "priors", models_dir=settings.models_dir
-        )
+    def planned(plan: RunPlan) -> None:
+        if plan.reason is not None:
+            log.info("preset chosen", extra={"preset": plan.config.preset, "reason": plan.reason})
+        beat.set_preset(plan.config.preset, plan.reason)
+        if plan.config.uses_depth:
+            beat.set_phase("depth prior")
+
+    def got_priors(priors: list[Any]) -> None:
         pictures = [storage.prior_picture(claim.job_id, i) for i in range(len(priors))]
         _write_prior_pictures(priors, pictures)
-    checkpoint = run_dir / CHECKPOINT_NAME
-    if spec.time_budget_s is not None and not checkpoint.exists():
-        beat.set_phase("timing")
-        n = iterations_for_budget(scene, config, priors, spec.time_budget_s, device)
-        config = _with_length(spec, config, n, settings)
-        (run_dir / "budget.json").write_text(f'{{"iterations": {n}}}')
-    elif spec.time_budget_s is not None and (run_dir / "budget.json").exists():
-        n = int(json.loads((run_dir / "budget.json").read_text())["iterations"])
-        config = _with_length(spec, config, n, settings)
+
     records: list[dict[str, Any]] = []
 
     def on_progress(event: Any) -> bool:
@@ -153,11 +145,25 @@ def _train(
             beat.set_phase(event.state)
         return beat.cancel_requested
 
+    checkpoint = run_dir / CHECKPOINT_NAME
     resume = checkpoint if checkpoint.exists() else None
     if resume is not None:
         log.info("resuming from checkpoint", extra={"job_id": claim.job_id})
-    trainer = Trainer(scene, config, priors, run_dir, on_progress, device, resume)
-    beat.attach(trainer, config.iterations)
+    run = build_run(
+        run_spec(spec, settings),
+        scene,
+        out_dir=run_dir,
+        on_progress=on_progress,
+        device=device,
+        resume_from=resume,
+        prior_cache_dir=run_dir / "priors",
+        models_dir=settings.models_dir,
+        on_plan=planned,
+        on_priors=got_priors,
+    )
+    trainer, config = run.trainer, run.plan.config
+    budget = config.time_budget_s
+    beat.attach(trainer, config.iterations if budget is None else None, budget)
     result = trainer.run()
     if beat.lost:
         return Outcome(JobState.queued, "lease lost to another worker")
@@ -168,7 +174,8 @@ def _train(
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
     return Outcome(
         JobState.succeeded,
-        f"trained {result.iteration} iterations in {result.seconds:.0f} s",
+        f"trained {result.iteration} iterations in {result.seconds:.0f} s"
+        + (f" of a {budget:g} s budget" if budget is not None else ""),
         {
             "metrics": metrics,
             "n_gaussians": result.n_gaussians,
@@ -203,24 +210,6 @@ def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
         write_report(records, run_dir, plot=True)
     except Exception:  # a plot is a convenience: never fail a job over it
         log.warning("could not write the metrics series", exc_info=True)
-
-
-def _with_length(spec: JobSpec, config: Any, iterations: int, settings: Settings) -> Any:
-    """``config`` rebuilt for a run of ``iterations`` (a time budget's), its preset's schedule
-    compressed from the reference; the preset already chosen is kept, not chosen again."""
-    sized = spec.model_copy(update={"preset": config.preset, "iterations": iterations})
-    return _with_service_settings(build_config(sized, None)[0], settings)
-
-
-def _with_service_settings(config: Any, settings: Settings) -> Any:
-    """Thread count and checkpoint cadence are the deployment's, not the job's."""
-    import dataclasses
-
-    return dataclasses.replace(
-        config,
-        threads=settings.torch_threads,
-        checkpoint_interval_s=settings.checkpoint_interval_s,
-    )
 
 
 def _auto_device() -> str:

@@ -37,7 +37,6 @@ retrains them). Run it in the background, e.g.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -135,12 +134,13 @@ def variant_overrides(variant: str) -> dict[str, Any]:
     if variant == "full":
         return {}
     if variant == "no_depth":
-        return {"depth_prior": "none"}
+        return {"depth.prior": "none"}
     kind, _, rest = variant.partition(":")
     if kind == "prior" and rest:
-        return {"depth_prior": rest}
+        return {"depth.prior": rest}
     if kind == "set" and rest:
-        from sparsesplat.engine.train.config import ConfigError, parse_override
+        from sparsesplat.engine.train.config import ConfigError
+        from sparsesplat.engine.train.overrides import parse_override
 
         overrides: dict[str, Any] = {}
         for item in rest.split("+"):
@@ -284,17 +284,17 @@ def run_entry(
         "path": str(scene_path),
         "format": scene.format,
         "variant": variant,
-        "prior": config.depth_prior if config.uses_depth else "none",
+        "prior": config.depth.prior if config.uses_depth else "none",
         "views": len(scene.train),
         "iterations": config.iterations,
         "seed": config.seed,
     }
     t0 = time.perf_counter()
     try:
-        depth = priors.get(scene_path, scene, config.depth_prior) if config.uses_depth else None
+        depth = priors.get(scene_path, scene, config.depth.prior) if config.uses_depth else None
         # Dense init always back-projects the plane sweep here (what the trainer does for a
         # monocular prior), so a metric prior:user variant changes the depth passes only.
-        dense = config.init == "dense"
+        dense = config.init.method == "dense"
         init_depth = priors.get(scene_path, scene, "plane_sweep") if dense else None
         result = Trainer(scene, config, depth, out_dir, device=device, init_depth=init_depth).run()
     except EngineError as exc:  # one failed entry must not end a sweep of hours
@@ -392,6 +392,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.train.overrides import apply_overrides
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -423,11 +424,13 @@ def run(args: argparse.Namespace) -> int:
             preset_name = PRESET_OF_FORMAT.get(scene.format, "default")
             trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row
             for variant in variants:
-                config = dataclasses.replace(
+                config = apply_overrides(
                     variant_config(preset_name, variant, seed, args.iterations),
-                    eval_max_views=args.eval_max_views,
-                    export=not args.no_export,
-                    checkpoint_interval_s=0.0,
+                    {
+                        "record.eval_max_views": args.eval_max_views,
+                        "record.export": not args.no_export,
+                        "record.checkpoint_interval_s": 0.0,
+                    },
                 )
                 key = (scene.name, variant, len(scene.train), config.iterations, seed)
                 if key in done:

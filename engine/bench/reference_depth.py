@@ -136,8 +136,9 @@ def measure_scene(
         seed=seed,
         depth_prior="none",
         init="random",
+        export=False,
+        checkpoint_interval_s=0.0,
     )
-    config = dataclasses.replace(config, export=False, checkpoint_interval_s=0.0)
     scene_dir = out_dir / sparse.name
     t0 = time.perf_counter()
     trainer = Trainer(dense, config, None, scene_dir / "run")

@@ -49,8 +49,10 @@ class ColorModel:
         """Serializable state of the global parameters and settings."""
         return {"kind": self.kind}
 
-    def step_hook(self, iteration: int) -> None:
-        """Called once per training iteration before rendering (SH degree schedule)."""
+    def step_hook(self, position: float, previous: float) -> None:
+        """Called once per training iteration before rendering (SH degree schedule), with the
+        iteration's schedule position and the one before (``position - 1`` without a time
+        budget)."""
 
 
 class NeuralColor(ColorModel):
@@ -170,9 +172,10 @@ class SHColor(ColorModel):
             out["sh_rest"] = torch.zeros(n, (self.degree + 1) ** 2 - 1, 3)
         return out
 
-    def step_hook(self, iteration: int) -> None:
-        """3DGS: one more SH band every ``interval`` iterations."""
-        if self.interval > 0 and iteration % self.interval == 0:
+    def step_hook(self, position: float, previous: float) -> None:
+        """3DGS: one more SH band every ``interval`` iterations of the schedule."""
+        # Passing a multiple of the interval (for whole iterations: position % interval == 0).
+        if self.interval > 0 and position // self.interval > previous // self.interval:
             self.active_degree = min(self.active_degree + 1, self.degree)
 
     def _coeffs(self, gaussians: Gaussians) -> Tensor:

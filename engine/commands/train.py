@@ -31,7 +31,7 @@ PRIOR_KINDS = (
 """The ``--prior`` kinds, one line each for ``--help``."""
 
 PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
-"""Presets in the order ``--help`` lists them (``engine.train.config.PRESETS``)."""
+"""Presets in the order ``--help`` lists them (``engine.train.presets.PRESETS``)."""
 
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe; "
@@ -45,7 +45,7 @@ _PRESET_HELP = {
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
     "recipe; 1500 iterations",
 }
-# When to use each preset and its default run length. Kept here, not in engine.train.config,
+# When to use each preset and its default run length. Kept here, not in engine.train.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names
 # exactly the presets that exist, with their PRESET_ITERATIONS.
 
@@ -92,8 +92,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="SECONDS",
-        help="train for about this many seconds instead: a 10-iteration probe times this "
-        "scene and the preset's schedule is compressed to fit",
+        help="train until this many seconds of training are spent instead (a deadline); the "
+        "preset's schedule (LR decay, densification, depth starts) follows the elapsed fraction",
     )
     parser.add_argument(
         "--prior",
@@ -107,8 +107,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", default=None, help="continue from this checkpoint")
     parser.add_argument(
         "--set", action="append", default=[], metavar="FIELD=JSON",
-        help="override any TrainConfig field, value as JSON (repeatable), e.g. "
-        "--set background=white --set lambda_dssim=0.3",
+        help="override any TrainConfig field by its dotted name, value as JSON (repeatable), "
+        "e.g. --set background=white --set photometric.lambda_dssim=0.3 --set depth.soft_start=500",
     )  # fmt: skip
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object per line (no progress bar)"
@@ -116,23 +116,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
-def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    from sparsesplat.engine.train.config import ConfigError, parse_override
+def run_spec(args: argparse.Namespace) -> Any:
+    """The :class:`RunSpec` the options ask for (``--set``, ``--seed``, ``--prior``,
+    ``--no-depth``, ``--iterations``, ``--time-budget``, ``--preset``)."""
+    from sparsesplat.engine.train.config import ConfigError
+    from sparsesplat.engine.train.overrides import parse_override, resolve
+    from sparsesplat.engine.train.run import RunSpec
 
-    out: dict[str, Any] = {}
+    overrides: dict[str, Any] = {}
+    iterations = args.iterations
     for item in args.set:
         try:
             key, value = parse_override(item)
+            name = resolve(key)
         except ConfigError as exc:
             raise CommandError(f"--set {exc}") from None
-        out[key] = value
+        if name == "iterations":  # --set iterations=N means --iterations N
+            if iterations is not None:
+                raise CommandError("give either --iterations or --set iterations=N, not both")
+            iterations = value  # its type is checked by the preset
+            continue
+        overrides[key] = value
+    if isinstance(iterations, int) and iterations < 1:
+        raise CommandError(f"--iterations must be >= 1, got {iterations}")
     if args.seed is not None:
-        out["seed"] = args.seed
+        overrides["seed"] = args.seed
     if args.prior is not None:
-        out["depth_prior"] = args.prior
+        overrides["depth.prior"] = args.prior
     if args.no_depth:
-        out["depth_prior"] = "none"
-    return out
+        overrides["depth.prior"] = "none"
+    if args.time_budget is not None:
+        if not (math.isfinite(args.time_budget) and args.time_budget > 0):
+            raise CommandError(f"--time-budget must be > 0 seconds, got {args.time_budget}")
+        if iterations is not None:
+            raise CommandError("give either --iterations or --time-budget, not both")
+    return RunSpec(args.preset, overrides, iterations, args.time_budget)
 
 
 def _clock(seconds: float) -> str:
@@ -144,11 +162,22 @@ def _clock(seconds: float) -> str:
 class ProgressLine:
     """The default output: one line on ``stream`` redrawn in place (a TTY) with iteration /
     total, elapsed, estimated remaining and the latest held-out PSNR beside the constant-
-    background baseline; on a non-TTY stream, one line per held-out record instead."""
+    background baseline; on a non-TTY stream, one line per held-out record instead. Under a
+    time budget the bar and the time left follow the budget's training seconds."""
 
-    def __init__(self, total: int, baseline: float | None, stream: TextIO) -> None:
-        """``baseline``: the PSNR of a constant background image (None: no held-out views)."""
+    def __init__(
+        self,
+        total: int,
+        baseline: float | None,
+        stream: TextIO,
+        budget_s: float | None = None,
+    ) -> None:
+        """``baseline``: the PSNR of a constant background image (None: no held-out views);
+        ``budget_s``: the run's time budget (None: it runs ``total`` iterations)."""
         self.total = total
+        self.budget_s = budget_s
+        self.trained_s = 0.0
+        """The trainer's training seconds so far (what a budget counts)."""
         self.baseline = baseline
         self.stream = stream
         self.tty = stream.isatty()
@@ -166,9 +195,14 @@ class ProgressLine:
         elapsed = time.monotonic() - self.start
         left = elapsed / done * (self.total - self.iteration) if done > 0 else None
         frac = self.iteration / self.total if self.total else 1.0
+        count = f"{self.iteration}/{self.total}"
+        if self.budget_s is not None:
+            frac = min(self.trained_s / self.budget_s, 1.0)
+            left = max(self.budget_s - self.trained_s, 0.0)
+            count = f"{self.iteration} it"
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         parts = [
-            f"{self.iteration}/{self.total} [{bar}]",
+            f"{count} [{bar}]",
             f"elapsed {_clock(elapsed)}",
             f"left {_clock(left) if left is not None else '?'}",
         ]
@@ -187,9 +221,10 @@ class ProgressLine:
         self.stream.write("\r" + line + " " * pad + ("\n" if final else ""))
         self.stream.flush()
 
-    def record(self, iteration: int, psnr: float | None) -> None:
-        """A held-out record arrived."""
+    def record(self, iteration: int, psnr: float | None, trained_s: float = 0.0) -> None:
+        """A held-out record arrived (``trained_s``: its training seconds)."""
         self.iteration = iteration
+        self.trained_s = max(self.trained_s, trained_s)
         if psnr is not None:
             self.psnr = psnr
         if self.tty:
@@ -207,6 +242,7 @@ class ProgressLine:
         def loop() -> None:
             while not self._stop.wait(0.5):
                 self.iteration = trainer.iteration
+                self.trained_s = trainer.elapsed_s
                 self.draw()
 
         self._thread = threading.Thread(target=loop, daemon=True)
@@ -231,7 +267,9 @@ def _summary_text(metrics: dict[str, Any], artifacts: dict[str, str]) -> str:
         f"PSNR {fmt('psnr', '.2f')} dB"
         + (f" (constant background: {base:.2f} dB)" if base is not None else "")
         + f"  SSIM {fmt('ssim', '.3f')}  LPIPS {fmt('lpips', '.3f')}  AVGE {fmt('avge', '.3f')}",
-        f"{metrics.get('iterations')} iterations in {fmt('seconds', '.0f')} s of training, "
+        f"{metrics.get('iterations')} iterations in {fmt('seconds', '.0f')} s of training"
+        + (f" (budget {budget:g} s)" if (budget := metrics.get("time_budget_s")) else "")
+        + ", "
         f"{metrics.get('n_gaussians')} Gaussians, preset {metrics.get('preset')}",
     ]
     lines += [f"{kind:12s} {path}" for kind, path in artifacts.items()]
@@ -254,8 +292,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.datasets.common import choose_preset
-    from sparsesplat.engine.train import ProgressRecord, StateChange, Trainer, preset
+    from sparsesplat.engine.train import ProgressRecord, StateChange
+    from sparsesplat.engine.train.run import RunPlan, build_run
 
     out = sys.stdout
 
@@ -265,43 +303,22 @@ def _run(args: argparse.Namespace) -> int:
             out.flush()
 
     device = check_device(args.device)
-    overrides = _overrides(args)
-    if "iterations" in overrides:  # --set iterations=N means --iterations N
-        if args.iterations is not None:
-            raise CommandError("give either --iterations or --set iterations=N, not both")
-        args.iterations = overrides.pop("iterations")  # its type is checked by preset()
-    if isinstance(args.iterations, int) and args.iterations < 1:
-        raise CommandError(f"--iterations must be >= 1, got {args.iterations}")
-    if args.time_budget is not None:
-        if not (math.isfinite(args.time_budget) and args.time_budget > 0):
-            raise CommandError(f"--time-budget must be > 0 seconds, got {args.time_budget}")
-        if args.iterations is not None:
-            raise CommandError("give either --iterations or --time-budget, not both")
-        if args.resume:
-            raise CommandError("--time-budget cannot be combined with --resume")
+    spec = run_spec(args)
     scene = load_scene(args.scene, views=args.views)
-    if args.preset:
-        name, reason = args.preset, "--preset"
-    else:
-        name, reason = choose_preset(scene)
-    config = preset(name, iterations=args.iterations, **overrides)
-    emit({"kind": "preset", "preset": name, "reason": reason})
-    if not args.json and not args.quiet:
-        print(f"preset {name}: {reason}", file=sys.stderr, flush=True)
-    prepare_native(device, color=config.color_model == "neural")
-    priors = None
-    if config.uses_depth:
-        from sparsesplat.engine.priors import compute_priors
+    talk = not args.json and not args.quiet
 
-        priors = compute_priors(scene, config.depth_prior)
-    if args.time_budget is not None:
-        from sparsesplat.engine.train.budget import iterations_for_budget
-
-        n = iterations_for_budget(scene, config, priors, args.time_budget, device)
-        config = preset(name, iterations=n, **overrides)
-        emit({"kind": "budget", "seconds": args.time_budget, "iterations": n})
-        if not args.json and not args.quiet:
-            print(f"time budget {args.time_budget:g} s: {n} iterations", file=sys.stderr)
+    def announce(plan: RunPlan) -> None:
+        config = plan.config
+        reason = plan.reason or "--preset"
+        emit({"kind": "preset", "preset": config.preset, "reason": reason})
+        if talk:
+            print(f"preset {config.preset}: {reason}", file=sys.stderr, flush=True)
+        if config.time_budget_s is not None:
+            budget = config.time_budget_s
+            emit({"kind": "budget", "seconds": budget, "schedule_iterations": config.iterations})
+            if talk:
+                print(f"time budget {budget:g} s: training until it is spent", file=sys.stderr)
+        prepare_native(device, color=config.color.model == "neural")
 
     bar: ProgressLine | None = None
 
@@ -309,13 +326,23 @@ def _run(args: argparse.Namespace) -> int:
         if isinstance(event, ProgressRecord):
             emit(event.to_dict())
             if bar is not None:
-                bar.record(event.iteration, event.psnr)
+                bar.record(event.iteration, event.psnr, event.elapsed_s)
         elif isinstance(event, StateChange):
             emit(event.to_dict())
 
-    trainer = Trainer(scene, config, priors, args.out, show, device, args.resume)
-    if not args.json and not args.quiet:
-        bar = ProgressLine(config.iterations, trainer.background_psnr(), sys.stderr)
+    run = build_run(
+        spec,
+        scene,
+        out_dir=args.out,
+        on_progress=show,
+        device=device,
+        resume_from=args.resume,
+        on_plan=announce,
+    )
+    trainer, config = run.trainer, run.plan.config
+    if talk:
+        baseline = trainer.background_psnr()
+        bar = ProgressLine(config.iterations, baseline, sys.stderr, config.time_budget_s)
         bar.follow(trainer)
     try:
         result = trainer.run()

@@ -143,8 +143,8 @@ class TrainedModel:
             feats = colors(cam.center.to(g.means))
             return rasterize(
                 g.means, g.log_scales, g.quats, g.opacity_logits, feats, cam,
-                bg.to(self.device), near=self.raster_near, eps2d=cfg.eps2d,
-                backend=cfg.raster_backend,
+                bg.to(self.device), near=self.raster_near, eps2d=cfg.raster.eps2d,
+                backend=cfg.raster.backend,
             )  # fmt: skip
 
     def color_fn(self):  # type: ignore[no-untyped-def]

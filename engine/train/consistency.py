@@ -24,7 +24,7 @@ depth-only render (features of width 0) without gradient; without it the term al
 pixels the partner sees occluded. Add ``weight * loss`` to the photometric loss before its
 backward::
 
-    loss = photo + cfg.consistency_weight * warp_consistency_loss(
+    loss = photo + cfg.consistency.weight * warp_consistency_loss(
         images[i], images[j], out.depth, cams[i], cams[j], alpha=out.alpha,
         source_depth=partner.depth / partner.alpha.clamp_min(1e-6) (detached, masked))
 """
@@ -32,7 +32,6 @@ backward::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -42,8 +41,9 @@ from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import CameraError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.raster import RasterOutput
-from sparsesplat.engine.train.config import ConsistencyPartnersName, TrainConfig
+from sparsesplat.engine.train.config import ConsistencyConfig
 from sparsesplat.engine.train.parts import Raster, TrainView
+from sparsesplat.engine.train.schedule import ScheduleClock
 
 
 def relative_pose(reference: Camera, source: Camera) -> tuple[Tensor, Tensor]:
@@ -154,35 +154,6 @@ def warp_consistency_loss(
     return diff.masked_fill(~valid, 0.0).sum() / count
 
 
-@dataclass(frozen=True)
-class ConsistencySettings:
-    """The warp-consistency part of the flat :class:`TrainConfig`."""
-
-    weight: float
-    """``consistency_weight``; the part is built only when > 0."""
-    start: int
-    """The term applies for iterations > this."""
-    occlusion: bool
-    """Render the partner's depth for the occlusion check."""
-    partners: ConsistencyPartnersName = "nearest"
-    """``nearest``: the nearest training view only; ``all``: every other training view."""
-
-    @property
-    def enabled(self) -> bool:
-        """Whether the term is on."""
-        return self.weight > 0
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> ConsistencySettings:
-        """The consistency part of ``cfg``."""
-        return cls(
-            cfg.consistency_weight,
-            cfg.consistency_start,
-            cfg.consistency_occlusion,
-            cfg.consistency_partners,
-        )
-
-
 class WarpConsistency:
     """The trainer's consistency part (hook ``extra_loss``): each training view is paired with
     the other training view whose camera centre is nearest, or with every other training view
@@ -190,13 +161,16 @@ class WarpConsistency:
 
     def __init__(
         self,
-        settings: ConsistencySettings,
+        settings: ConsistencyConfig,
         cameras: list[Camera],
         images: list[Tensor],
         raster: Raster,
+        clock: ScheduleClock,
     ) -> None:
-        """``cameras``, ``images``: the training views ((3, H, W) photos, not edited targets)."""
+        """``cameras``, ``images``: the training views ((3, H, W) photos, not edited targets);
+        ``clock``: the run's schedule position (``start`` follows it)."""
         self.settings = settings
+        self.clock = clock
         self.cameras = cameras
         self.images = images
         self.raster = raster
@@ -231,7 +205,7 @@ class WarpConsistency:
         photometric render ``out`` against the partner photo, or None when the term is not
         due (or there is no partner)."""
         s, partners = self.settings, self.partners[view.index]
-        if iteration <= s.start or not partners:
+        if self.clock.position(iteration) <= s.start or not partners:
             return None
         losses = [
             warp_consistency_loss(

@@ -15,8 +15,8 @@ Where it runs: once, at model set-up (today ``Trainer._setup_model``, where
 
     points, colours = dense_points_from_priors(
         [v.image for v in scene.train], [v.camera for v in scene.train], priors,
-        target=cfg.dense_init_points, generator=trainer_generator,
-        min_confidence=cfg.dense_init_min_confidence)
+        target=cfg.init.dense_points, generator=trainer_generator,
+        min_confidence=cfg.init.dense_min_confidence)
 
 The points then feed ``NeuralColor.create`` (hash-grid bounds) and ``Gaussians.from_points``
 (k-NN scales) exactly as the random points do; the colours can seed SH DC terms. When no pixel
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,28 +41,6 @@ from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import PriorError
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.scene import Scene
-from sparsesplat.engine.train.config import TrainConfig
-
-
-@dataclass(frozen=True)
-class DenseInitSettings:
-    """The dense-init part of the flat :class:`TrainConfig`."""
-
-    enabled: bool
-    """``config.init == 'dense'``."""
-    points: int | None
-    """Points to draw; None: the random init's count."""
-    min_confidence: float
-    """Smallest confidence of a pixel used."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> DenseInitSettings:
-        """The dense-init part of ``cfg``."""
-        return cls(
-            enabled=cfg.init == "dense",
-            points=cfg.dense_init_points,
-            min_confidence=cfg.dense_init_min_confidence,
-        )
 
 
 def init_priors(

@@ -1,7 +1,7 @@
 """The densification strategy of 3DGS as DNGaussian runs it (dngaussian-method.md §1.7).
 
-Between ``densify_from`` and ``densify_until`` the photometric pass's screen-space gradients
-are accumulated per Gaussian; every ``densify_interval`` iterations Gaussians with a large mean
+Between ``densify.start`` and ``densify.until`` the photometric pass's screen-space gradients
+are accumulated per Gaussian; every ``densify.interval`` iterations Gaussians with a large mean
 gradient are cloned (small ones) or split (large ones), and the transparent ones (and, when
 configured, the ones too large on screen or in the world) are pruned. At the
 ``clean_iterations`` Gaussians no training camera sees are pruned; with an
@@ -10,13 +10,12 @@ configured, the ones too large on screen or in the world) are pruned. At the
 The gradient accumulators themselves live on :class:`Gaussians` (its table surgery keeps them
 row-aligned, and they are checkpointed with the model); the strategy owns the largest screen
 radius seen per Gaussian (:attr:`DensifyStrategy.max_radii`). A run that never densifies nor
-cleans (``DensifySettings.active`` false) builds no strategy.
+cleans (``DensifyConfig.active`` false) builds no strategy.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -26,67 +25,13 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import EngineError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.raster import RasterOutput
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import DensifyConfig
 from sparsesplat.engine.train.parts import Raster, StageTimer
+from sparsesplat.engine.train.schedule import ScheduleClock
 
 
 class ModelCollapsed(EngineError, RuntimeError):
     """Training removed every Gaussian (e.g. a pruning threshold no Gaussian can pass)."""
-
-
-@dataclass(frozen=True)
-class DensifySettings:
-    """The densification thresholds and schedule (from the flat :class:`TrainConfig`)."""
-
-    densify_from: int
-    """Densify for iterations > this ..."""
-    densify_until: int
-    """... and < this (gradient statistics and the opacity reset stop here too)."""
-    interval: int
-    """Densify every n iterations."""
-    grad_threshold: float
-    """Mean screen-space gradient (NDC units) from which a Gaussian is cloned or split."""
-    percent_dense: float
-    """Clone if max scale <= this x extent, else split."""
-    split_opacity_threshold: float
-    """Only Gaussians with opacity above this are cloned or split."""
-    prune_opacity: float
-    """Prune Gaussians with opacity below this at each densification."""
-    opacity_reset_interval: int | None
-    """3DGS opacity reset period; None = never."""
-    max_screen_size: float | None
-    """Prune Gaussians whose screen radius exceeded this many pixels (after the first opacity
-    reset); None = off (and no radii are tracked)."""
-    max_world_size: float | None
-    """Prune Gaussians larger than this x extent; None = off."""
-    max_gaussians: int | None
-    """Cap on the number of Gaussians."""
-    clean_iterations: tuple[int, ...]
-    """Iterations at which Gaussians invisible from every training view are pruned."""
-
-    @property
-    def active(self) -> bool:
-        """Whether the strategy does anything in a run: statistics (and with them
-        densification and the opacity reset) need an iteration below ``densify_until``."""
-        return self.densify_until > 1 or bool(self.clean_iterations)
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> DensifySettings:
-        """The densification part of ``cfg``."""
-        return cls(
-            densify_from=cfg.densify_from,
-            densify_until=cfg.densify_until,
-            interval=cfg.densify_interval,
-            grad_threshold=cfg.densify_grad_threshold,
-            percent_dense=cfg.percent_dense,
-            split_opacity_threshold=cfg.split_opacity_threshold,
-            prune_opacity=cfg.prune_opacity,
-            opacity_reset_interval=cfg.opacity_reset_interval,
-            max_screen_size=cfg.max_screen_size,
-            max_world_size=cfg.max_world_size,
-            max_gaussians=cfg.max_gaussians,
-            clean_iterations=tuple(cfg.clean_iterations),
-        )
 
 
 class DensifyStrategy:
@@ -99,14 +44,17 @@ class DensifyStrategy:
 
     def __init__(
         self,
-        settings: DensifySettings,
+        settings: DensifyConfig,
         cameras: list[Camera],
         raster: Raster,
         generator: torch.Generator,
+        clock: ScheduleClock,
     ) -> None:
         """``cameras``: the training cameras (clean-views pruning); ``raster``: the run's
-        rasterizer; ``generator``: the run's generator (split samples)."""
+        rasterizer; ``generator``: the run's generator (split samples); ``clock``: the run's
+        schedule position (the window, the resets and the clean iterations follow it)."""
         self.settings = settings
+        self.clock = clock
         self.cameras = cameras
         self.raster = raster
         self.generator = generator
@@ -119,7 +67,7 @@ class DensifyStrategy:
     ) -> bool:
         """Clean-views pruning at the clean iterations; returns whether it ran (no statistics
         are gathered and no densification happens in that iteration)."""
-        if iteration not in self.settings.clean_iterations:
+        if not any(self.clock.crossed(c, iteration) for c in self.settings.clean_iterations):
             return False
         self.clean_views(gaussians, optimizer)
         if len(gaussians) == 0:
@@ -142,8 +90,8 @@ class DensifyStrategy:
         photometric render through ``camera``), densify when due, reset opacities when due.
         ``before_densify``: called with the model just before densify-and-prune (the DTU
         black/white rule)."""
-        s, g, it = self.settings, gaussians, iteration
-        if it < s.densify_until and not cleaned:
+        s, g, it, pos = self.settings, gaussians, iteration, self.clock.position(iteration)
+        if pos < s.until and not cleaned:
             grad = out.means2d.grad
             if grad is not None:
                 w, h = camera.width, camera.height
@@ -160,10 +108,10 @@ class DensifyStrategy:
                     else torch.zeros(len(g), device=r.device)
                 )
                 self.max_radii = torch.maximum(prev, r) if prev.shape == r.shape else r
-        if s.densify_from < it < s.densify_until and it % s.interval == 0:
+        if s.start < pos < s.until and it % s.interval == 0:
             if before_densify is not None:
                 before_densify(g)
-            reset_done = s.opacity_reset_interval is not None and it > s.opacity_reset_interval
+            reset_done = s.opacity_reset_interval is not None and pos > s.opacity_reset_interval
             g.densify_and_prune(
                 optimizer,
                 grad_threshold=s.grad_threshold,
@@ -183,14 +131,15 @@ class DensifyStrategy:
                     f"step {it}: every Gaussian was pruned (prune_opacity={s.prune_opacity})"
                 )
             timer.tick("densify")
-        if s.opacity_reset_interval and it % s.opacity_reset_interval == 0 and it < s.densify_until:
+        reset = s.opacity_reset_interval
+        if reset and self.clock.crossed_multiple(reset, it) and pos < s.until:
             g.reset_opacity(optimizer)
 
     def finish(
         self, iteration: int, gaussians: Gaussians, optimizer: torch.optim.Optimizer
     ) -> None:
         """After the last iteration: clean views once more if it is a clean iteration."""
-        if iteration in self.settings.clean_iterations:
+        if any(self.clock.crossed(c, iteration) for c in self.settings.clean_iterations):
             self.clean_views(gaussians, optimizer)
 
     def clean_views(self, gaussians: Gaussians, optimizer: torch.optim.Optimizer) -> None:

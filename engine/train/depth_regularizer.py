@@ -8,7 +8,7 @@ paper's single objective):
 
 1. hard depth: opacity ``hard_opacity`` everywhere, scales/rotations detached → centres move;
 2. soft depth: centres/scales/rotations detached → only opacities move; after
-   ``soft_depth_start`` and, on DTU, only while the EMA of the hard loss is below a gate.
+   ``depth.soft_start`` and, on DTU, only while the EMA of the hard loss is below a gate.
 
 The part is constructed only when the config uses depth; it prepares the priors once (shape
 checks, the empty-background edit, the [0, 257] guides of the smoothness weights).
@@ -16,7 +16,6 @@ checks, the empty-background edit, the [0, 257] guides of the smoothness weights
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -25,7 +24,7 @@ from torch import Tensor
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
 from sparsesplat.engine.losses import DepthTarget, edge_aware_smoothness, global_local_depth_loss
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import DepthConfig
 from sparsesplat.engine.train.dtu_background import fill_background_depth
 from sparsesplat.engine.train.guard import DivergenceGuard
 from sparsesplat.engine.train.parts import (
@@ -34,81 +33,10 @@ from sparsesplat.engine.train.parts import (
     TrainView,
     finish_auxiliary_pass,
 )
+from sparsesplat.engine.train.schedule import ScheduleClock
 
 HARD_EMA_DECAY = 0.9
 """Weight of the previous value in the running mean of the hard-depth loss (the DTU gate)."""
-
-
-@dataclass(frozen=True)
-class DepthSettings:
-    """The depth passes' weights and schedules (from the flat :class:`TrainConfig`)."""
-
-    prior: str
-    """The prior kind (quoted in error messages)."""
-    hard: bool
-    """Run the hard-depth pass."""
-    soft: bool
-    """Run the soft-depth pass."""
-    hard_opacity: float
-    """Constant opacity of the hard-depth pass."""
-    hard_start: int
-    """Hard depth runs for iterations > this."""
-    soft_start: int
-    """Soft depth runs for iterations > this."""
-    every: int
-    """The passes run every n-th iteration."""
-    until: int | None
-    """The passes stop at this iteration; None = never."""
-    soft_ema_gate: float | None
-    """A soft step is taken only while the hard loss's EMA is below this; None = always."""
-    patch_range: tuple[int, int]
-    """Smallest and largest patch side of the local normalization (inclusive)."""
-    error_tolerance: float
-    """Margin of the error-tolerant L2."""
-    global_weight: float
-    """Weight of the global-normalization term."""
-    local_weight: float
-    """Weight of the local-normalization term."""
-    smooth_weight: float
-    """Weight of the prior-edge-aware depth smoothness (0 = off)."""
-    smooth_start: int
-    """Smoothness applies for iterations > this."""
-    empty_background: bool
-    """Set the prior to its nearest value on pixels showing the pure background."""
-    joint: bool = False
-    """``auxiliary_step='joint'``: the passes leave their gradients for the photometric step
-    instead of taking their own optimizer steps."""
-    fill_background: bool = False
-    """DTU: fill the view's background mask (``TrainView.mask``) in rendered and prior depth
-    with their foreground means (``dtu_background`` and ``dtu_depth_fill``)."""
-    soft_fused: bool = False
-    """The soft term is computed on the photometric render (:meth:`DepthRegularizer.soft_loss`)
-    instead of in a pass of its own."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> DepthSettings:
-        """The depth part of ``cfg``."""
-        return cls(
-            prior=cfg.depth_prior,
-            hard=cfg.hard_depth,
-            soft=cfg.soft_depth,
-            hard_opacity=cfg.hard_opacity,
-            hard_start=cfg.hard_depth_start,
-            soft_start=cfg.soft_depth_start,
-            every=cfg.depth_every,
-            until=cfg.depth_until,
-            soft_ema_gate=cfg.soft_depth_ema_gate,
-            patch_range=(cfg.patch_min, cfg.patch_max),
-            error_tolerance=cfg.error_tolerance,
-            global_weight=cfg.depth_global_weight,
-            local_weight=cfg.depth_local_weight,
-            smooth_weight=cfg.depth_smooth_weight,
-            smooth_start=cfg.depth_smooth_start,
-            empty_background=cfg.depth_empty_background,
-            joint=cfg.auxiliary_step == "joint",
-            fill_background=cfg.dtu_background and cfg.dtu_depth_fill,
-            soft_fused=cfg.soft_depth_fused,
-        )
 
 
 def empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tensor) -> Tensor:
@@ -128,19 +56,29 @@ class DepthRegularizer:
 
     def __init__(
         self,
-        settings: DepthSettings,
+        settings: DepthConfig,
         priors: list[Any] | None,
         images: list[Tensor],
         background: Tensor,
         view_names: list[str],
         raster: Raster,
         generator: torch.Generator,
+        clock: ScheduleClock,
         views: set[int] | None = None,
+        joint: bool = False,
+        fill_background: bool = False,
     ) -> None:
         """Check and prepare ``priors`` (one PriorDepth or (H, W) tensor per training view,
-        aligned with ``images`` (3, H, W)); SceneError names the view of a bad one. ``views``:
-        the training views whose prior is used (None: all)."""
+        aligned with ``images`` (3, H, W)); SceneError names the view of a bad one. ``clock``:
+        the run's schedule position (the starts and ``until`` follow it). ``views``: the
+        training views whose prior is used (None: all). ``joint``: ``optim.auxiliary_step ==
+        'joint'``, the passes leave their gradients for the photometric step. ``fill_background``:
+        DTU, fill the view's background mask (``TrainView.mask``) in rendered and prior depth
+        with their foreground means (``dtu.enabled`` and ``dtu.depth_fill``)."""
         self.settings = settings
+        self.clock = clock
+        self.joint = joint
+        self.fill_background = fill_background
         self.views = views
         """Positions of the training views the depth passes run on (None: every view)."""
         self.raster = raster
@@ -192,13 +130,13 @@ class DepthRegularizer:
     ) -> None:
         """The iteration's hard and soft passes, each with its own optimizer step (or, joint,
         its gradients left for the photometric step), when the schedules say so."""
-        s, g, it = self.settings, gaussians, iteration
-        if not self._due(it, view):
+        s, g, pos = self.settings, gaussians, self.clock.position(iteration)
+        if not self._due(iteration, view):
             return
         n = len(g)
         empty = g.means.new_zeros(n, 0)
-        mask = view.mask if s.fill_background else None
-        if s.hard and it > s.hard_start:
+        mask = view.mask if self.fill_background else None
+        if s.hard and pos > s.hard_start:
             hard = torch.full((n,), self.hard_logit, device=g.means.device)
             out = self.raster(
                 g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, view.camera, None
@@ -206,12 +144,12 @@ class DepthRegularizer:
             loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
             loss.backward()
-            finish_auxiliary_pass(optimizer, s.joint)
+            finish_auxiliary_pass(optimizer, self.joint)
             hv = float(loss.detach())
             ema = self.hard_ema
             self.hard_ema = hv if ema is None else HARD_EMA_DECAY * ema + 0.1 * hv
             timer.tick("hard_depth")
-        if self._soft_due(it) and not s.soft_fused:
+        if self._soft_due(iteration) and not s.soft_fused:
             out = self.raster(
                 g.means.detach(),
                 g.log_scales.detach(),
@@ -224,13 +162,13 @@ class DepthRegularizer:
             loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
             guard.check_finite(loss.detach(), "the soft-depth loss", iteration)
             loss.backward()
-            finish_auxiliary_pass(optimizer, s.joint)
+            finish_auxiliary_pass(optimizer, self.joint)
             timer.tick("soft_depth")
 
     def _due(self, iteration: int, view: TrainView) -> bool:
         """Whether the depth schedule and the view's prior allow a depth term this iteration."""
-        s = self.settings
-        if iteration % s.every != 0 or (s.until is not None and iteration >= s.until):
+        s, pos = self.settings, self.clock.position(iteration)
+        if iteration % s.every != 0 or (s.until is not None and pos >= s.until):
             return False
         return self.views is None or view.index in self.views
 
@@ -240,7 +178,7 @@ class DepthRegularizer:
         gate_open = s.soft_ema_gate is None or (
             self.hard_ema is not None and self.hard_ema < s.soft_ema_gate
         )
-        return s.soft and iteration > s.soft_start and gate_open
+        return s.soft and self.clock.position(iteration) > s.soft_start and gate_open
 
     def wants_fused_soft(self, iteration: int, view: TrainView) -> bool:
         """Whether the photometric render must provide ``opacity_depth`` for :meth:`soft_loss`
@@ -252,7 +190,7 @@ class DepthRegularizer:
     ) -> Tensor:
         """The soft-depth term on the photometric render's opacity-only depth (its gradient
         reaches the opacities alone), to be added to the photometric loss."""
-        mask = view.mask if self.settings.fill_background else None
+        mask = view.mask if self.fill_background else None
         return self.depth_loss(opacity_depth, view.index, iteration, extent, mask)
 
     def depth_loss(
@@ -275,7 +213,7 @@ class DepthRegularizer:
             s.global_weight,
             s.local_weight,
         )
-        if s.smooth_weight > 0 and iteration > s.smooth_start:
+        if s.smooth_weight > 0 and self.clock.position(iteration) > s.smooth_start:
             weights = self.targets[index].smooth_weights
             smooth = edge_aware_smoothness(d / extent, self.smooth_guides[index], weights)
             loss = loss + s.smooth_weight * smooth

@@ -41,7 +41,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from sparsesplat.engine.raster import RasterOutput
-from sparsesplat.engine.train.config import ConfigError, TrainConfig
+from sparsesplat.engine.train.config import ConfigError, DropoutConfig
+from sparsesplat.engine.train.schedule import ScheduleClock
 
 OPACITY_CEILING = 0.999
 """Largest compensated opacity handed to the rasterizer (its per-pixel alpha cap)."""
@@ -60,7 +61,7 @@ class DropoutSchedule:
         if not (math.isfinite(self.max_rate) and 0.0 <= self.max_rate < 1.0):
             raise ConfigError(f"dropout max_rate must be in [0, 1), got {self.max_rate}")
 
-    def rate(self, iteration: int, total: int) -> float:
+    def rate(self, iteration: float, total: int) -> float:
         """Drop rate for 1-based ``iteration`` of ``total``; 0 outside [1, total]."""
         if total < 1:
             raise ConfigError(f"dropout schedule: total iterations must be >= 1, got {total}")
@@ -154,42 +155,27 @@ def draw_dropout(
     return GaussianDropout(keep.to(device), rate)
 
 
-@dataclass(frozen=True)
-class DropoutSettings:
-    """The dropout part of the flat :class:`TrainConfig`."""
-
-    enabled: bool
-    """``config.dropout``: the part is built only when on."""
-    schedule: DropoutSchedule
-    """The rate over training (``dropout_rate``, ``dropout_progressive``)."""
-    total: int
-    """The run's iteration count (the progressive schedule's T)."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> DropoutSettings:
-        """The dropout part of ``cfg``."""
-        return cls(
-            enabled=cfg.dropout,
-            schedule=DropoutSchedule(cfg.dropout_rate, cfg.dropout_progressive),
-            total=cfg.iterations,
-        )
-
-
 class PhotometricDropout:
     """The trainer's dropout part (hook ``photometric_inputs``): one draw per iteration, from
     the run's generator (checkpointed with the run, so resumed runs replay the same draws).
     No state of its own."""
 
-    def __init__(self, settings: DropoutSettings, generator: torch.Generator) -> None:
-        """``generator``: the run's CPU generator."""
+    def __init__(
+        self, settings: DropoutConfig, generator: torch.Generator, clock: ScheduleClock
+    ) -> None:
+        """``generator``: the run's CPU generator; ``clock``: the run's schedule position
+        (the progressive rate follows it over ``clock.total``)."""
         self.settings = settings
+        self.schedule = DropoutSchedule(settings.rate, settings.progressive)
+        """The rate over training."""
         self.generator = generator
+        self.clock = clock
 
     def draw(self, iteration: int, n: int, device: torch.device | str) -> GaussianDropout | None:
         """This iteration's draw over ``n`` Gaussians; None when the rate is 0 (nothing drawn)
         or when the draw keeps no Gaussian (the render then uses every Gaussian, uncompensated,
         rather than an empty image)."""
-        rate = self.settings.schedule.rate(iteration, self.settings.total)
+        rate = self.schedule.rate(self.clock.position(iteration), self.clock.total)
         if rate == 0.0:
             return None
         drop = draw_dropout(n, rate, self.generator, device)

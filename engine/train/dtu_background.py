@@ -47,7 +47,7 @@ from torch import Tensor
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import SSIMTarget
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import DtuConfig
 from sparsesplat.engine.train.guard import DivergenceGuard
 from sparsesplat.engine.train.parts import (
     Raster,
@@ -219,37 +219,6 @@ def _check_mask(mask: Tensor, image: Tensor) -> None:
         )
 
 
-@dataclass(frozen=True)
-class DtuPartSettings:
-    """The DTU background part of the flat :class:`TrainConfig` (``dtu_*`` fields)."""
-
-    enabled: bool
-    """``config.dtu_background``: the part is built only when on."""
-    blacken_target: bool
-    """Black masked target pixels in the photometric loss."""
-    depth_fill: bool
-    """Fill masked depth in the hard and soft passes (read by the depth regulariser)."""
-    alpha_loss: bool
-    """Run the background-alpha pass."""
-    black_white: bool
-    """Apply the black/white rule at each densification."""
-    joint: bool = False
-    """``auxiliary_step='joint'``: the alpha pass leaves its gradient for the photometric step
-    instead of taking its own optimizer step."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> DtuPartSettings:
-        """The DTU background part of ``cfg``."""
-        return cls(
-            enabled=cfg.dtu_background,
-            blacken_target=cfg.dtu_blacken_target,
-            depth_fill=cfg.dtu_depth_fill,
-            alpha_loss=cfg.dtu_alpha_loss,
-            black_white=cfg.dtu_black_white,
-            joint=cfg.auxiliary_step == "joint",
-        )
-
-
 class DtuBackground:
     """The trainer's DTU background part. No state (the masks follow from the images).
 
@@ -258,11 +227,19 @@ class DtuBackground:
     strategy just before densify-and-prune)."""
 
     def __init__(
-        self, settings: DtuPartSettings, scene_name: str, images: list[Tensor], raster: Raster
+        self,
+        settings: DtuConfig,
+        scene_name: str,
+        images: list[Tensor],
+        raster: Raster,
+        joint: bool = False,
     ) -> None:
         """``images``: the (3, H, W) training targets; the per-scan thresholds come from
-        ``scene_name`` (:meth:`DtuBackgroundSettings.for_scene`)."""
+        ``scene_name`` (:meth:`DtuBackgroundSettings.for_scene`). ``joint``:
+        ``optim.auxiliary_step == 'joint'``, the alpha pass leaves its gradient for the
+        photometric step instead of taking its own optimizer step."""
         self.settings = settings
+        self.joint = joint
         self.scan = DtuBackgroundSettings.for_scene(scene_name)
         self.raster = raster
         self.masks = [background_mask(img, self.scan) for img in images]
@@ -310,7 +287,7 @@ class DtuBackground:
         loss = background_alpha_loss(out.alpha, mask)
         guard.check_finite(loss.detach(), "the DTU background-alpha loss", iteration)
         loss.backward()
-        finish_auxiliary_pass(optimizer, self.settings.joint)
+        finish_auxiliary_pass(optimizer, self.joint)
         timer.tick("dtu_alpha")
 
     def black_white(self, iteration: int, gaussians: Gaussians, colors: Tensor) -> None:

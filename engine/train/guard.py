@@ -13,7 +13,6 @@ Three checks, all read-only (the guard never changes the model):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -21,35 +20,10 @@ from torch import Tensor
 
 from sparsesplat.engine.errors import TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import GuardConfig
 
 STEP_CHECK_FROM = 10
 """Step sizes are judged from this iteration on (Adam's first steps are large by design)."""
-
-
-@dataclass(frozen=True)
-class GuardSettings:
-    """The guard's thresholds (from the flat :class:`TrainConfig`)."""
-
-    check_every: int
-    """Check every parameter group for non-finite values every n iterations."""
-    step_limits: dict[str, float]
-    """Per-group limit on the running mean |update| of one photometric step (means in units
-    of the scene extent)."""
-    last_iteration: int
-    """The run's last iteration: the groups are always checked after it."""
-    lr_means_init: float
-    """Quoted in the message of a non-finite loss (the usual culprit)."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> GuardSettings:
-        """The guard's part of ``cfg``."""
-        return cls(
-            check_every=cfg.divergence_check_every,
-            step_limits=dict(cfg.divergence_step_limits),
-            last_iteration=cfg.iterations,
-            lr_means_init=cfg.lr_means_init,
-        )
 
 
 def _group_lr(optimizer: torch.optim.Optimizer, name: str) -> float:
@@ -60,10 +34,20 @@ class DivergenceGuard:
     """Finite, magnitude and step-size checks around the optimizer; its only state is the
     running mean step size per watched group (checkpointed as ``step_ema``)."""
 
-    def __init__(self, settings: GuardSettings, box: tuple[Tensor, Tensor]) -> None:
+    def __init__(
+        self,
+        settings: GuardConfig,
+        box: tuple[Tensor, Tensor],
+        last_iteration: int,
+        lr_means_init: float,
+    ) -> None:
         """``box``: the init box (lo, hi); with the extent it sets the scene size the
-        magnitude checks compare with."""
+        magnitude checks compare with. ``last_iteration``: the run's last iteration (the groups
+        are always checked after it); ``lr_means_init``: quoted in the message of a non-finite
+        loss (the usual culprit)."""
         self.settings = settings
+        self.last_iteration = last_iteration
+        self.lr_means_init = lr_means_init
         self.box = box
         self.step_ema: dict[str, float] = {}
         """Running mean |update| per watched group."""
@@ -73,7 +57,7 @@ class DivergenceGuard:
         if not bool(torch.isfinite(value).all()):
             raise TrainingDiverged(
                 f"training diverged at step {iteration}: {what} is not finite "
-                f"(try lower learning rates; lr_means_init={self.settings.lr_means_init})"
+                f"(try lower learning rates; optim.lr_means_init={self.lr_means_init})"
             )
 
     def before_step(
@@ -97,7 +81,7 @@ class DivergenceGuard:
         """Judge the step sizes against ``before``; check the values when due."""
         self._check_step_sizes(iteration, optimizer, gaussians, extent, before)
         s = self.settings
-        if iteration % s.check_every == 0 or iteration == s.last_iteration:
+        if iteration % s.check_every == 0 or iteration == self.last_iteration:
             self.check_groups(iteration, optimizer, gaussians, extent, grads=False)
 
     def check_groups(

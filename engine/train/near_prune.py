@@ -38,8 +38,9 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import CameraError
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.scene import Scene
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import NearPruneConfig
 from sparsesplat.engine.train.densify import ModelCollapsed
+from sparsesplat.engine.train.schedule import ScheduleClock
 
 
 @dataclass(frozen=True)
@@ -51,11 +52,13 @@ class NearPruneSchedule:
     after: int = 2000
     """... and ``iteration > after``."""
 
-    def due(self, iteration: int) -> bool:
-        """True when 1-based ``iteration`` prunes."""
+    def due(self, iteration: int, position: float | None = None) -> bool:
+        """True when 1-based ``iteration`` prunes (``position``: its schedule position, which
+        ``after`` is compared with; None: the iteration itself)."""
         if self.every < 1:
             raise CameraError(f"near prune: every must be >= 1, got {self.every}")
-        return iteration > self.after and (iteration - 1) % self.every == 0
+        after = iteration if position is None else position
+        return after > self.after and (iteration - 1) % self.every == 0
 
 
 def near_prune_mask(
@@ -102,36 +105,21 @@ def near_prune_mask(
     return out
 
 
-@dataclass(frozen=True)
-class NearPruneSettings:
-    """The near-prune part of a :class:`TrainConfig`."""
-
-    enabled: bool
-    """``config.near_prune``."""
-    radius: float
-    """Prune radius as a fraction of ``Scene.near`` (``config.near_prune_radius``)."""
-    schedule: NearPruneSchedule
-    """When the training-time prune runs."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> NearPruneSettings:
-        """The near-prune part of ``cfg``."""
-        return cls(
-            enabled=cfg.near_prune,
-            radius=cfg.near_prune_radius,
-            schedule=NearPruneSchedule(every=cfg.near_prune_every, after=cfg.near_prune_start),
-        )
-
-
 class NearPrune:
     """Deletes the Gaussians near the scene's render path in training and near the rendered
     cameras at evaluation. Hooks: :meth:`step` (after densification, before the photometric
     optimizer step) and :meth:`eval_keep` (the recorder renders only the kept rows)."""
 
-    def __init__(self, settings: NearPruneSettings, scene: Scene) -> None:
+    def __init__(
+        self, settings: NearPruneConfig, scene: Scene, clock: ScheduleClock | None = None
+    ) -> None:
         """``scene``: its ``near`` sets the radius, its render path (else its training cameras)
-        the cameras pruned against in training."""
+        the cameras pruned against in training; ``clock``: the run's schedule position
+        (``start`` follows it; None: the iteration itself)."""
         self.settings = settings
+        self.schedule = NearPruneSchedule(every=settings.every, after=settings.start)
+        """When the training-time prune runs."""
+        self.clock = clock
         self.radius = settings.radius * scene.near
         """Prune radius in scene units."""
         path = scene.render_path or [v.camera for v in scene.train]
@@ -142,13 +130,14 @@ class NearPrune:
 
     def step(self, iteration: int, gaussians: Gaussians, optimizer: torch.optim.Optimizer) -> None:
         """Delete the Gaussians within the radius of a path camera when the schedule is due."""
-        if not self.settings.schedule.due(iteration) or len(gaussians) == 0:
+        position = self.clock.position(iteration) if self.clock is not None else iteration
+        if not self.schedule.due(iteration, position) or len(gaussians) == 0:
             return
         drop = near_prune_mask(gaussians.means, self.path_centres, self.radius)
         if bool(drop.all()):
             raise ModelCollapsed(
                 f"step {iteration}: near pruning would delete every Gaussian (radius "
-                f"{self.radius:.4g} = near_prune_radius {self.settings.radius} x scene near)"
+                f"{self.radius:.4g} = near_prune.radius {self.settings.radius} x scene near)"
             )
         if bool(drop.any()):
             gaussians.prune(~drop, optimizer)

@@ -1,7 +1,7 @@
 """What the training loop hands its parts, and the stage timer they report to.
 
 A part (densification, the depth regulariser, the divergence guard, the recorder) owns its
-settings (a frozen dataclass built from the flat :class:`TrainConfig` by ``from_config``), its
+settings (its own section of :class:`TrainConfig`, e.g. ``config.densify``), its
 running state (``state_dict`` / ``load_state_dict``, merged into the checkpoint's top level)
 and its hooks; the loop in ``trainer.py`` calls the hooks in the order the method runs them.
 Tensors that a checkpoint load or a densification replaces (the Gaussians, the optimizer) are

@@ -12,7 +12,6 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +32,7 @@ from sparsesplat.engine.metrics.image import masked_psnr, psnr, quantize
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.report import write_report
 from sparsesplat.engine.scene import Scene
-from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.config import RecordConfig
 from sparsesplat.engine.train.parts import Raster
 from sparsesplat.engine.train.progress import ProgressRecord
 
@@ -121,30 +120,6 @@ def baking_psnr(
     )
 
 
-@dataclass(frozen=True)
-class RecordSettings:
-    """What is recorded and written (from the flat :class:`TrainConfig`)."""
-
-    eval_max_views: int | None
-    """Held-out views scored by an interim evaluation (all of them at the end)."""
-    eval_lpips: bool
-    """Compute LPIPS (and AVGE) when the weights are available."""
-    export: bool
-    """Write .ply/.splat exports at the end."""
-    preset: str
-    """The preset name, copied into the metrics."""
-
-    @classmethod
-    def from_config(cls, cfg: TrainConfig) -> RecordSettings:
-        """The recording part of ``cfg``."""
-        return cls(
-            eval_max_views=cfg.eval_max_views,
-            eval_lpips=cfg.eval_lpips,
-            export=cfg.export,
-            preset=cfg.preset,
-        )
-
-
 class Recorder:
     """Evaluates, keeps the error-vs-time series and writes the run's files.
 
@@ -153,14 +128,17 @@ class Recorder:
 
     def __init__(
         self,
-        settings: RecordSettings,
+        settings: RecordConfig,
         scene: Scene,
         background: Tensor,
         raster: Raster,
         out_dir: Path | None,
+        preset: str = "default",
     ) -> None:
-        """``scene``: its held-out views are scored; ``background``: the run's (3,) colour."""
+        """``scene``: its held-out views are scored; ``background``: the run's (3,) colour;
+        ``preset``: the preset name, copied into the metrics."""
         self.settings = settings
+        self.preset = preset
         self.scene = scene
         self.background = background
         self.raster = raster
@@ -306,7 +284,7 @@ class Recorder:
             seconds=elapsed_s,
             iterations=iteration,
             n_gaussians=len(gaussians),
-            preset=self.settings.preset,
+            preset=self.preset,
             stopped=stopped,
             background_psnr=self.background_psnr(),
         )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 
-def log_linear(step: int, lr_init: float, lr_final: float, max_steps: int) -> float:
+def log_linear(step: float, lr_init: float, lr_final: float, max_steps: int) -> float:
     """3DGS exponential decay: log-linear interpolation from ``lr_init`` to ``lr_final`` over
     ``max_steps``; constant at ``lr_final`` afterwards (both must be > 0)."""
     if max_steps <= 0:
@@ -15,7 +15,78 @@ def log_linear(step: int, lr_init: float, lr_final: float, max_steps: int) -> fl
 
 
 def position_lr(
-    iteration: int, lr_init: float, lr_final: float, start: int, steps: int, extent: float
+    iteration: float, lr_init: float, lr_final: float, start: int, steps: int, extent: float
 ) -> float:
     """DNGaussian's centre LR: ``log_linear(max(iteration - start, 0))`` times the scene extent."""
     return extent * log_linear(max(iteration - start, 0), lr_init, lr_final, steps)
+
+
+def crossed(previous: float, position: float, mark: float) -> bool:
+    """Whether the schedule passed ``mark`` in the step from ``previous`` to ``position``
+    (for whole-iteration steps: ``position == mark``)."""
+    return previous < mark <= position
+
+
+def crossed_multiple(previous: float, position: float, interval: int) -> bool:
+    """Whether the step from ``previous`` to ``position`` passed a multiple of ``interval``
+    (for whole-iteration steps: ``position % interval == 0``)."""
+    return interval > 0 and position // interval > previous // interval
+
+
+class ScheduleClock:
+    """Where the run is on its nominal schedule of ``total`` iterations.
+
+    Without a budget the position of iteration ``i`` is ``i`` itself, so every part compares
+    exactly as a plain iteration counter would (and a hook called with any iteration number
+    sees that number). With ``budget_s`` the run is a deadline: the position of the current
+    iteration is ``total`` x the elapsed fraction of the budget, and the run ends when the
+    budget is spent, so the LR decay, densification window, depth starts and dropout ramp land
+    at the same fractions of the budget whatever the machine's speed. Parts compare schedule
+    fields (those ``TrainConfig.with_iterations`` scales) against :meth:`position` and keep
+    raw iteration counts for cadences (``densify.interval``, ``depth.every``)."""
+
+    def __init__(self, total: int, budget_s: float | None = None) -> None:
+        """``total``: the nominal schedule length (``config.iterations``)."""
+        self.total = total
+        self.budget_s = budget_s
+        self._position = 0.0
+        self._previous = 0.0
+
+    def _at(self, elapsed_s: float) -> float:
+        assert self.budget_s is not None
+        return min(float(self.total), self.total * elapsed_s / self.budget_s)
+
+    def start(self, elapsed_s: float) -> None:
+        """Set the position of a run (re)started after ``elapsed_s`` training seconds."""
+        if self.budget_s is not None:
+            self._position = self._previous = self._at(elapsed_s)
+
+    def advance(self, elapsed_s: float) -> None:
+        """Move to the next iteration, begun after ``elapsed_s`` training seconds."""
+        if self.budget_s is not None:
+            self._previous = self._position
+            self._position = self._at(elapsed_s)
+
+    def finished(self, iteration: int, elapsed_s: float) -> bool:
+        """Whether the run is over: ``total`` iterations done, or the budget spent."""
+        if self.budget_s is None:
+            return iteration >= self.total
+        return elapsed_s >= self.budget_s
+
+    def position(self, iteration: int) -> float:
+        """The schedule position of (1-based) ``iteration``, the current one under a budget."""
+        return iteration if self.budget_s is None else self._position
+
+    def previous(self, iteration: int) -> float:
+        """The schedule position of the iteration before ``iteration``."""
+        return iteration - 1 if self.budget_s is None else self._previous
+
+    def crossed(self, mark: float, iteration: int) -> bool:
+        """Whether ``iteration`` passed schedule position ``mark`` (whole iterations:
+        ``iteration == mark``)."""
+        return crossed(self.previous(iteration), self.position(iteration), mark)
+
+    def crossed_multiple(self, interval: int, iteration: int) -> bool:
+        """Whether ``iteration`` passed a multiple of ``interval`` (whole iterations:
+        ``iteration % interval == 0``)."""
+        return crossed_multiple(self.previous(iteration), self.position(iteration), interval)

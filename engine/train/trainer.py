@@ -35,7 +35,6 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -62,19 +61,15 @@ from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
-from sparsesplat.engine.train.consistency import ConsistencySettings, WarpConsistency
-from sparsesplat.engine.train.dense_init import (
-    DenseInitSettings,
-    dense_points_from_priors,
-    init_priors,
-)
-from sparsesplat.engine.train.densify import DensifySettings, DensifyStrategy, ModelCollapsed
+from sparsesplat.engine.train.consistency import WarpConsistency
+from sparsesplat.engine.train.dense_init import dense_points_from_priors, init_priors
+from sparsesplat.engine.train.densify import DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_gate import agreeing_views
-from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, DepthSettings
-from sparsesplat.engine.train.dropout import DropoutSettings, PhotometricDropout, scatter_output
-from sparsesplat.engine.train.dtu_background import DtuBackground, DtuPartSettings
-from sparsesplat.engine.train.guard import DivergenceGuard, GuardSettings
-from sparsesplat.engine.train.near_prune import NearPrune, NearPruneSettings
+from sparsesplat.engine.train.depth_regularizer import DepthRegularizer
+from sparsesplat.engine.train.dropout import PhotometricDropout, scatter_output
+from sparsesplat.engine.train.dtu_background import DtuBackground
+from sparsesplat.engine.train.guard import DivergenceGuard
+from sparsesplat.engine.train.near_prune import NearPrune
 from sparsesplat.engine.train.parts import StageTimer, TrainView
 from sparsesplat.engine.train.progress import (
     ProgressCallback,
@@ -82,14 +77,9 @@ from sparsesplat.engine.train.progress import (
     StateChange,
     wants_stop,
 )
-from sparsesplat.engine.train.recorder import (
-    Recorder,
-    RecordSettings,
-    json_safe,
-    model_sh,
-    render_model,
-)
-from sparsesplat.engine.train.schedule import position_lr
+from sparsesplat.engine.train.random_init import frusta_box, initial_point_count
+from sparsesplat.engine.train.recorder import Recorder, json_safe, model_sh, render_model
+from sparsesplat.engine.train.schedule import ScheduleClock, position_lr
 
 log = logging.getLogger(__name__)
 
@@ -118,35 +108,6 @@ class TrainResult:
     """Iterations completed."""
 
 
-def _frusta_box(scene: Scene) -> tuple[Tensor, Tensor]:
-    """A box around the training frusta between the scene's near and far bounds."""
-    pts = []
-    far = min(scene.far, scene.near * 1e3) if scene.near > 0 else scene.far
-    for v in scene.train:
-        cam = v.camera
-        c2w = cam.camera_to_world.float()
-        for u, w in ((0, 0), (cam.width, 0), (0, cam.height), (cam.width, cam.height)):
-            ray = torch.tensor([(u - cam.cx) / cam.fx, (w - cam.cy) / cam.fy, 1.0])
-            for z in (scene.near, far):
-                pts.append(c2w[:3, :3] @ (ray * z) + c2w[:3, 3])
-    p = torch.stack(pts)
-    return p.min(dim=0).values, p.max(dim=0).values
-
-
-def initial_point_count(
-    cfg: TrainConfig, lo: Tensor, hi: Tensor, camera_centers: list[Tensor]
-) -> int:
-    """The automatic initial Gaussian count: ``init_points_density`` x the init box's largest
-    side over the median distance from the cameras to the box centre (a ratio of lengths, so
-    the same scene in millimetres or metres gets the same count), clamped to the config's
-    bounds."""
-    centre = (lo.double() + hi.double()) / 2
-    dist = torch.stack([(c.double() - centre).norm() for c in camera_centers]).median()
-    side = float((hi.double() - lo.double()).max())
-    n = round(cfg.init_points_density * side / float(dist)) if float(dist) > 0 else 0
-    return min(max(n, cfg.init_points_min), cfg.init_points_max)
-
-
 class Trainer:
     """Trains one scene with one config; drive it with :meth:`run`."""
 
@@ -160,12 +121,18 @@ class Trainer:
         device: str | torch.device = "cpu",
         resume_from: str | Path | None = None,
         init_depth: list[Any] | None = None,
+        time_source: Callable[[], float] = time.perf_counter,
     ) -> None:
         """Set up the model. ``priors``: one PriorDepth (or (H, W) tensor) per training view, or
         None when the config uses no depth. ``resume_from``: a checkpoint to continue.
-        ``init_depth``: metric PriorDepths for ``init='dense'``; None uses ``priors`` when they
-        are metric, else computes a plane-sweep prior (cached under ``out_dir/priors``)."""
+        ``init_depth``: metric PriorDepths for ``init.method='dense'``; None uses ``priors``
+        when they are metric, else computes a plane-sweep prior (cached under
+        ``out_dir/priors``). ``time_source``: the clock training seconds are measured with
+        (tests inject a fake one to drive a time budget)."""
         self.config = config.validate()
+        self.time_source = time_source
+        self.clock = ScheduleClock(config.iterations, config.time_budget_s)
+        """The schedule position the parts compare their schedule fields with."""
         self.scene = scene
         self.device = torch.device(device)
         self.out_dir = Path(out_dir) if out_dir is not None else None
@@ -184,54 +151,55 @@ class Trainer:
             views = self._depth_views(priors)
             if views is None or views:
                 self.depth = DepthRegularizer(
-                    DepthSettings.from_config(self.config),
+                    self.config.depth,
                     priors,
                     self.images,
                     self.background,
                     [v.name for v in self.scene.train],
                     self._raster,
                     self.generator,
+                    self.clock,
                     views,
+                    joint=self.config.optim.joint,
+                    fill_background=self.config.dtu.enabled and self.config.dtu.depth_fill,
                 )
         self.init_note: str | None = None
         """How the initial Gaussians were made when ``init='dense'`` (also in the metrics)."""
         self._setup_model(init_depth if init_depth is not None else priors)
-        densify = DensifySettings.from_config(self.config)
+        cfg, clock = self.config, self.clock
         self.densify: DensifyStrategy | None = None
         """The densification strategy; None when the run never densifies nor cleans."""
-        if densify.active:
-            self.densify = DensifyStrategy(densify, self.cameras, self._raster, self.generator)
-        dropout = DropoutSettings.from_config(self.config)
+        if cfg.densify.active:
+            self.densify = DensifyStrategy(
+                cfg.densify, self.cameras, self._raster, self.generator, clock
+            )
         self.dropout: PhotometricDropout | None = None
-        """DropGaussian on the photometric pass; None unless ``config.dropout``."""
-        if dropout.enabled:
-            self.dropout = PhotometricDropout(dropout, self.generator)
-        dtu = DtuPartSettings.from_config(self.config)
+        """DropGaussian on the photometric pass; None unless ``dropout.enabled``."""
+        if cfg.dropout.enabled:
+            self.dropout = PhotometricDropout(cfg.dropout, self.generator, clock)
         self.dtu: DtuBackground | None = None
-        """DTU black-background handling; None unless ``config.dtu_background``."""
-        if dtu.enabled:
-            self.dtu = DtuBackground(dtu, self.scene.name, self.images, self._raster)
-        consistency = ConsistencySettings.from_config(self.config)
+        """DTU black-background handling; None unless ``dtu.enabled``."""
+        if cfg.dtu.enabled:
+            self.dtu = DtuBackground(
+                cfg.dtu, self.scene.name, self.images, self._raster, cfg.optim.joint
+            )
         self.consistency: WarpConsistency | None = None
-        """The warp-consistency term; None unless ``config.consistency_weight > 0``."""
-        if consistency.enabled:
-            self.consistency = WarpConsistency(consistency, self.cameras, self.images, self._raster)
-        near_prune = NearPruneSettings.from_config(self.config)
+        """The warp-consistency term; None unless ``consistency.weight > 0``."""
+        if cfg.consistency.enabled:
+            self.consistency = WarpConsistency(
+                cfg.consistency, self.cameras, self.images, self._raster, clock
+            )
         self.near_prune: NearPrune | None = None
-        """Near-plane pruning; None unless ``config.near_prune``."""
-        if near_prune.enabled:
-            self.near_prune = NearPrune(near_prune, self.scene)
-        self.guard = DivergenceGuard(GuardSettings.from_config(self.config), self.box)
+        """Near-plane pruning; None unless ``near_prune.enabled``."""
+        if cfg.near_prune.enabled:
+            self.near_prune = NearPrune(cfg.near_prune, self.scene, clock)
+        self.guard = DivergenceGuard(cfg.guard, self.box, cfg.iterations, cfg.optim.lr_means_init)
         self.recorder = Recorder(
-            RecordSettings.from_config(self.config),
-            self.scene,
-            self.background,
-            self._raster,
-            self.out_dir,
+            cfg.record, self.scene, self.background, self._raster, self.out_dir, cfg.preset
         )
         if self.near_prune is not None:
             self.recorder.eval_keep = self.near_prune.eval_keep
-        self.timer = StageTimer(self.config.profile)
+        self.timer = StageTimer(self.config.record.profile)
         self.iteration = 0
         self.elapsed_s = 0.0
         self.view_stack: list[int] = []
@@ -256,24 +224,24 @@ class Trainer:
         self.ssim_targets = [SSIMTarget(img) for img in self.images]
         centers = torch.stack([c.center.float() for c in self.cameras])
         radius = float((centers - centers.mean(dim=0)).norm(dim=1).max()) * 1.1
-        if cfg.init_box is not None:
-            lo, hi = (torch.tensor(c, dtype=torch.float32) for c in cfg.init_box)
+        if cfg.init.box is not None:
+            lo, hi = (torch.tensor(c, dtype=torch.float32) for c in cfg.init.box)
         elif self.scene.init_box is not None:
             lo, hi = (torch.tensor(c, dtype=torch.float32) for c in self.scene.init_box)
         else:
-            lo, hi = _frusta_box(self.scene)
+            lo, hi = frusta_box(self.scene)
         self.box = (lo.cpu(), hi.cpu())
         if radius <= 0:  # a single view (or coincident cameras): fall back to the box size
             radius = float((hi - lo).max()) * 0.5
         self.extent = radius
         """Scene extent (1.1 x max train-camera distance from their mean), scales LRs."""
-        near = cfg.raster_near if cfg.raster_near is not None else 0.2 * self.scene.near
+        near = cfg.raster.near if cfg.raster.near is not None else 0.2 * self.scene.near
         self.raster_near = near if near > 0 else 0.01
         """View-z culling distance used by every render of this run."""
 
     def _depth_views(self, priors: list[Any] | None) -> set[int] | None:
         """The training views whose prior the depth passes use (None: all of them)."""
-        threshold = self.config.depth_min_agreement
+        threshold = self.config.depth.min_agreement
         if threshold is None or priors is None or len(priors) != len(self.scene.train):
             return None  # (a missing or misaligned prior is reported by the regulariser)
         cache = self.out_dir / "priors" if self.out_dir is not None else None
@@ -290,21 +258,20 @@ class Trainer:
         """Hook ``init_points``: points (N, 3) and, from the dense init, their colours."""
         cfg, g = self.config, self.generator
         lo, hi = self.box
-        if cfg.init_points is not None:
-            n = cfg.init_points
+        if cfg.init.points is not None:
+            n = cfg.init.points
         else:
-            n = initial_point_count(cfg, lo, hi, [c.center.cpu() for c in self.cameras])
-        dense = DenseInitSettings.from_config(cfg)
-        if dense.enabled:
+            n = initial_point_count(cfg.init, lo, hi, [c.center.cpu() for c in self.cameras])
+        if cfg.init.method == "dense":
             try:
                 cache = self.out_dir / "priors" if self.out_dir is not None else None
                 points, colours = dense_points_from_priors(
                     [v.image for v in self.scene.train],
                     [v.camera for v in self.scene.train],
                     init_priors(self.scene, depth, cache),
-                    target=dense.points or n,
+                    target=cfg.init.dense_points or n,
                     generator=g,
-                    min_confidence=dense.min_confidence,
+                    min_confidence=cfg.init.dense_min_confidence,
                 )
                 self.init_note = f"dense: {len(points)} points"
                 return points, colours
@@ -318,28 +285,28 @@ class Trainer:
         points, colours = self._initial_points(init_depth)
         n = len(points)
         self.color: ColorModel
-        if cfg.color_model == "neural":
+        if cfg.color.model == "neural":
             self.color = NeuralColor.create(
                 points,
                 g,
-                log2_table_size=cfg.hash_log2_size,
-                finest_resolution=cfg.hash_finest_resolution,
+                log2_table_size=cfg.color.hash_log2_size,
+                finest_resolution=cfg.color.hash_finest_resolution,
             )
             self.color.field.to(self.device)
         else:
-            self.color = SHColor(cfg.sh_degree, cfg.sh_degree_interval)
+            self.color = SHColor(cfg.color.sh_degree, cfg.color.sh_degree_interval)
         extra = self.color.init_per_gaussian(n, g)
         if colours is not None and "sh_dc" in extra:  # the pixels' colours as SH DC
             extra["sh_dc"] = ((colours - 0.5) / C0).unsqueeze(1)
         self.gaussians = Gaussians.from_points(
             points.to(self.device),
-            cfg.init_opacity,
+            cfg.init.opacity,
             {k: v.to(self.device) for k, v in extra.items()},
         )
         self.optimizer = self._make_optimizer()
 
     def _make_optimizer(self) -> torch.optim.Adam:
-        cfg = self.config
+        cfg = self.config.optim
         lrs = {
             "means": cfg.lr_means_init * self.extent,
             "log_scales": cfg.lr_scaling,
@@ -421,8 +388,8 @@ class Trainer:
             cam,
             bg,
             near=self.raster_near,
-            eps2d=cfg.eps2d,
-            backend=cfg.raster_backend,
+            eps2d=cfg.raster.eps2d,
+            backend=cfg.raster.backend,
             opacity_depth=opacity_depth,
         )
 
@@ -507,6 +474,7 @@ class Trainer:
         if self.near_prune is not None:
             self.near_prune.load_state_dict(state)
         self.recorder.records = list(state["records"])
+        self.clock.start(self.elapsed_s)
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path:
         """Write the native checkpoint (default ``out_dir/checkpoint.pt``)."""
@@ -524,11 +492,12 @@ class Trainer:
         return TrainView(i, self.cameras[i], self.images[i], self.ssim_targets[i])
 
     def _set_position_lr(self, iteration: int) -> None:
-        cfg = self.config
+        # The decay follows the schedule position (the iteration itself without a budget).
+        cfg, position = self.config.optim, self.clock.position(iteration)
         for group in self.optimizer.param_groups:
             if group["name"] == "means":
                 group["lr"] = position_lr(
-                    iteration,
+                    position,
                     cfg.lr_means_init,
                     cfg.lr_means_final,
                     cfg.lr_means_start,
@@ -538,7 +507,7 @@ class Trainer:
 
     def _photometric_loss(self, image: Tensor, view: TrainView) -> tuple[Tensor, Tensor]:
         """(total, photometric): L1 + λ·D-SSIM plus DNGaussian's shape/scale/opacity terms."""
-        cfg, g = self.config, self.gaussians
+        cfg, g = self.config.photometric, self.gaussians
         scales = g.scales
         photo = photometric_loss(image, view.image, cfg.lambda_dssim, view.ssim_target)
         loss = photo
@@ -555,7 +524,7 @@ class Trainer:
         cfg, it, timer, opt = self.config, self.iteration, self.timer, self.optimizer
         timer.start()
         self._set_position_lr(it)
-        self.color.step_hook(it)
+        self.color.step_hook(self.clock.position(it), self.clock.previous(it))
         cleaned = False
         if self.densify is not None:
             cleaned = self.densify.step_pre_backward(it, self.gaussians, opt)
@@ -575,7 +544,7 @@ class Trainer:
         colors = self.color.colors(g, view.camera.center)
         timer.tick("neural_fwd")
         # Profiling splits the colour field's backward from the rasterizer's.
-        leaf = colors.detach().requires_grad_(True) if cfg.profile else colors
+        leaf = colors.detach().requires_grad_(True) if cfg.record.profile else colors
         drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
         inputs: tuple[Tensor, ...]
         if drop is None:
@@ -596,6 +565,8 @@ class Trainer:
             extra = self.consistency.extra_loss(it, g, out, view)
             loss = loss if extra is None else loss + extra
         if fused_soft and self.depth is not None and out.opacity_depth is not None:
+            # DNGaussian's soft-depth term on this render: its gradient reaches the opacities
+            # only (the rasterizer routes it), as the reference's detached pass would.
             soft = self.depth.soft_loss(out.opacity_depth, view, it, self.extent)
             self.guard.check_finite(soft.detach(), "the soft-depth loss", it)
             loss = loss + soft
@@ -604,7 +575,7 @@ class Trainer:
         timer.tick("losses")
         loss.backward()
         timer.tick("photo_backward")
-        if cfg.profile and leaf.grad is not None:
+        if cfg.record.profile and leaf.grad is not None:
             colors.backward(leaf.grad)
             timer.tick("neural_bwd")
         self.recorder.add_train_loss(float(photo.detach()))
@@ -621,18 +592,10 @@ class Trainer:
         opt.step()
         opt.zero_grad(set_to_none=True)
         self.guard.after_step(it, opt, g, self.extent, before)
-        if cfg.opacity_decay < 1.0 and it < cfg.densify_until:
-            self._decay_opacity(cfg.opacity_decay)
+        decay = cfg.densify.opacity_decay
+        if decay < 1.0 and self.clock.position(it) < cfg.densify.until:
+            g.decay_opacity(decay)
         timer.tick("optimizer")
-
-    def _decay_opacity(self, factor: float) -> None:
-        """Scale every opacity by ``factor`` (on the logits, in place: Adam's moments stay)."""
-        with torch.no_grad():
-            x = self.gaussians.opacity_logits
-            # logit(f p) = log f + log p - log(1 - f p) and log p = x - softplus(x): finite
-            # for every float32 x (a plain logit of f * sigmoid(x) gives -inf once p underflows).
-            shift = math.log(factor) - torch.nn.functional.softplus(x)
-            x.add_(shift - torch.log1p(-factor * torch.sigmoid(x)))
 
     def _black_white(self, view: TrainView) -> Callable[[Gaussians], None] | None:
         """The DTU black/white rule for the densification step, when on."""
@@ -648,7 +611,8 @@ class Trainer:
         return rule
 
     def run(self) -> TrainResult:
-        """Train to ``config.iterations`` (or until the callback says stop); evaluate, save."""
+        """Train to ``config.iterations``, or under ``config.time_budget_s`` until the budget
+        is spent (or until the callback says stop); evaluate, save."""
         cfg = self.config
         prev_threads = torch.get_num_threads()
         if cfg.threads:
@@ -662,33 +626,34 @@ class Trainer:
             torch.set_num_threads(prev_threads)
 
     def _run(self) -> TrainResult:
-        cfg = self.config
+        clock, rec = self.clock, self.config.record
         self._emit(StateChange("initializing", self.iteration))
         if self.iteration == 0 and self._record():
             return self._finish(stopped=True)
         self._emit(StateChange("training", self.iteration))
         since_eval = since_ckpt = 0.0
-        while self.iteration < cfg.iterations:
-            t0 = time.perf_counter()
+        while not clock.finished(self.iteration, self.elapsed_s):
+            t0 = self.time_source()
             self.iteration += 1
+            clock.advance(self.elapsed_s)
             self._step()
-            dt = time.perf_counter() - t0
+            dt = self.time_source() - t0
             self.elapsed_s += dt
             since_eval += dt
             since_ckpt += dt
             if self.stop_requested:
                 return self._finish(stopped=True)
-            if self.iteration == cfg.iterations:
+            if clock.finished(self.iteration, self.elapsed_s):
                 break
-            due = (cfg.eval_interval_s > 0 and since_eval >= cfg.eval_interval_s) or (
-                cfg.eval_every is not None and self.iteration % cfg.eval_every == 0
+            due = (rec.eval_interval_s > 0 and since_eval >= rec.eval_interval_s) or (
+                rec.eval_every is not None and self.iteration % rec.eval_every == 0
             )
             if due:
                 since_eval = 0.0
                 if self._record():
                     return self._finish(stopped=True)
                 self._emit(StateChange("training", self.iteration))
-            if cfg.checkpoint_interval_s > 0 and since_ckpt >= cfg.checkpoint_interval_s:
+            if rec.checkpoint_interval_s > 0 and since_ckpt >= rec.checkpoint_interval_s:
                 since_ckpt = 0.0
                 if self.out_dir is not None:
                     self._emit(StateChange("checkpointing", self.iteration))
@@ -705,6 +670,8 @@ class Trainer:
         )
         if self.init_note is not None:
             metrics["init"] = self.init_note
+        if self.config.time_budget_s is not None:  # budget against used, for the job's report
+            metrics["time_budget_s"] = self.config.time_budget_s
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
         if self.depth_agreement is not None:

@@ -60,11 +60,18 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
         id=model_id,
         n_gaussians=int(result.get("n_gaussians", 0)),
         iterations=int(result.get("iterations", 0)),
-        metrics={k: result.get("metrics", {}).get(k) for k in ("psnr", "ssim", "lpips", "avge")},
+        metrics={k: result.get("metrics", {}).get(k) for k in MODEL_METRICS}
+        | {k: v for k, v in result.get("metrics", {}).items() if k in BUDGET_METRICS},
         exports=exports,
         cameras=cameras,
         background=tuple(result["background"]) if result.get("background") else None,
     )
+
+
+MODEL_METRICS = ("psnr", "ssim", "lpips", "avge")
+"""The held-out metrics every model reports (None where unavailable)."""
+BUDGET_METRICS = ("seconds", "time_budget_s")
+"""Training seconds used and, for a job with a time budget, the budget (when stored)."""
 
 
 def check_render_size(service: ServiceState, request: RenderRequest) -> None:

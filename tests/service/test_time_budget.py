@@ -1,9 +1,7 @@
-"""A time budget instead of an iteration count: the schedule is compressed to fit, from the
-iteration cost measured on the scene at the start of the run."""
+"""A time budget is a deadline: the job trains until the budget is spent (its schedule
+following the elapsed fraction) and reports the budget against the seconds it used."""
 
 from __future__ import annotations
-
-import json
 
 import httpx
 import pytest
@@ -13,7 +11,7 @@ from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
 pytestmark = pytest.mark.shared_data
 
 
-def test_time_budget_sets_the_iteration_count_from_a_timed_probe(
+def test_a_time_budget_trains_until_it_is_spent_and_reports_it(
     live: LiveService, mic_upload
 ) -> None:
     live.start_api()
@@ -22,11 +20,13 @@ def test_time_budget_sets_the_iteration_count_from_a_timed_probe(
     job = submit(live.url, mic_upload, spec)
     done = wait_state(live.url, job["id"], {"succeeded", "failed", "cancelled"}, timeout=300)
     assert done["state"] == "succeeded", live.tail()
-    budget = json.loads((live.data_dir / "jobs" / job["id"] / "run" / "budget.json").read_text())
     model = httpx.get(f"{live.url}/v1/models/{job['id']}").json()
-    # The run trained exactly the iterations the probe fitted into the budget (>= 1), and the
-    # progress it reported counted towards that total.
-    assert model["iterations"] == budget["iterations"] >= 1
-    assert done["progress"]["total"] == budget["iterations"]
-    # The last beat ran after training: a finished job shows its final iteration.
-    assert done["progress"]["iteration"] == budget["iterations"]
+    metrics = model["metrics"]
+    # Trained until the budget was spent: at least 6 s, at most one iteration more (the
+    # engine tests pin the exact rule with a fake clock; one iteration here is well under 2 s).
+    assert metrics["time_budget_s"] == 6.0
+    assert 6.0 <= metrics["seconds"] < 8.0, metrics
+    assert model["iterations"] >= 1
+    # Under a deadline the progress has no iteration total; the last beat shows the end.
+    assert done["progress"]["total"] is None
+    assert done["progress"]["iteration"] == model["iterations"]

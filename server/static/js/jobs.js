@@ -246,7 +246,7 @@ function jobForm() {
     el("option", { value: "" }, "the preset's"),
     el("option", { value: "pydnet" }, "pydnet (bundled monocular)"),
     el("option", { value: "plane_sweep" }, "plane_sweep (geometric)"),
-    el("option", { value: "uploaded" }, "uploaded depth maps"),
+    el("option", { value: "user" }, "uploaded depth maps"),
     el("option", { value: "none" }, "none"),
     el("option", { value: "custom" }, "ONNX model on the server…"),
   );
@@ -359,7 +359,7 @@ function jobForm() {
     const n = Number(lengthValue.value);
     if (length.value === "iterations" && n > 0) out.iterations = Math.round(n);
     if (length.value === "budget" && n > 0) out.time_budget_s = n;
-    if (interval.value && Number(interval.value) > 0) out.record_interval_s = Number(interval.value);
+    if (interval.value && Number(interval.value) > 0) out.eval_interval_s = Number(interval.value);
     if (seed.value) out.seed = Math.max(0, Math.round(Number(seed.value)));
     return out;
   }

@@ -34,7 +34,7 @@ def test_variants() -> None:
     base = preset("dtu")
     assert quality.variant_config("dtu", "full") == base
     assert not quality.variant_config("dtu", "no_depth").uses_depth
-    assert quality.variant_config("dtu", "prior:plane_sweep").depth_prior == "plane_sweep"
+    assert quality.variant_config("dtu", "prior:plane_sweep").depth.prior == "plane_sweep"
     assert quality.variant_config("dtu", "full", seed=2).seed == 2
     with pytest.raises(SystemExit, match="unknown variant"):
         quality.variant_config("dtu", "bogus")
@@ -53,7 +53,7 @@ def test_resume_skips_finished_and_reuses_identical_configs(
     def fake_entry(scene_path: Path, scene: Any, variant: str, config: Any, *rest: Any) -> dict:
         calls.append((scene.name, variant))
         row = {"scene": scene.name, "variant": variant, "views": 3}
-        row |= {"iterations": config.iterations, "psnr": 20.0, "prior": config.depth_prior}
+        row |= {"iterations": config.iterations, "psnr": 20.0, "prior": config.depth.prior}
         if scene.name == "b" and variant == "no_depth":
             row["error"] = "TrainingDiverged: boom"
         return row
@@ -83,8 +83,8 @@ def test_resume_skips_finished_and_reuses_identical_configs(
 
 def test_set_variants_override_validated_fields() -> None:
     base = preset("llff")
-    config = quality.variant_config("llff", 'set:lambda_dssim=0.3+color_model="sh"')
-    assert (config.lambda_dssim, config.color_model) == (0.3, "sh")
+    config = quality.variant_config("llff", 'set:lambda_dssim=0.3+color.model="sh"')
+    assert (config.photometric.lambda_dssim, config.color.model) == (0.3, "sh")
     assert config.iterations == base.iterations and config.preset == "llff"
     from sparsesplat.engine.train.config import ConfigError
 
@@ -131,8 +131,8 @@ def test_iters_variant_compresses_the_reference_schedule_and_wins_over_iteration
     for iterations in (None, 1000):
         short = quality.variant_config("llff", "iters:3000", iterations=iterations)
         assert short.iterations == 3000
-        assert short.densify_until == reference.densify_until // 2
-        assert short.soft_depth_start == reference.soft_depth_start // 2
+        assert short.densify.until == reference.densify.until // 2
+        assert short.depth.soft_start == reference.depth.soft_start // 2
     assert quality.variant_config("llff", "full", iterations=1000).iterations == 1000
     with pytest.raises(SystemExit, match="iters:N"):
         quality.variant_config("llff", "iters:many")

@@ -45,7 +45,8 @@ def test_millimetre_copy_trains_like_the_metre_copy(tmp_path: Path) -> None:
 
 def test_checkpoints_from_before_the_unit_free_count_still_load() -> None:
     from sparsesplat.engine.train import TrainConfig
+    from tests.engine.train.test_config import legacy_flat_dict
 
-    old = {**_config().to_dict(), "init_points_per_unit": 50.0}
+    old = {**legacy_flat_dict(_config()), "init_points_per_unit": 50.0}
     old.pop("init_points_density")
-    assert TrainConfig.from_dict(old).init_points_density == TrainConfig().init_points_density
+    assert TrainConfig.from_dict(old).init.points_density == TrainConfig().init.points_density

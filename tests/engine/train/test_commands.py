@@ -57,7 +57,19 @@ def test_render_command_writes_png(tmp_path: Path) -> None:
 def test_train_command_options() -> None:
     args = _parse(train_cmd, ["scene", "--out", "o", "--no-depth", "--iterations", "7",
                               "--set", "lambda_dssim=0.3"])  # fmt: skip
-    assert train_cmd._overrides(args) == {
-        "lambda_dssim": 0.3, "depth_prior": "none"
-    }  # fmt: skip
+    spec = train_cmd.run_spec(args)
+    assert spec.overrides == {"lambda_dssim": 0.3, "depth.prior": "none"}
+    assert (spec.iterations, spec.time_budget_s, spec.preset) == (7, None, None)
     assert torch.is_tensor(torch.zeros(1))
+
+
+def test_progress_line_under_a_budget_counts_training_seconds() -> None:
+    """A deadline has no iteration total: the bar and the time left follow the budget."""
+    import io
+
+    stream = io.StringIO()
+    line = train_cmd.ProgressLine(1500, 12.0, stream, budget_s=60.0)
+    line.record(40, 20.5, trained_s=30.0)
+    text = stream.getvalue()
+    assert text.startswith("40 it [" + "#" * 10 + "-" * 10 + "]"), text
+    assert "left 00:30" in text and "PSNR 20.50 dB (background 12.00)" in text

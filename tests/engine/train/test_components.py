@@ -29,14 +29,13 @@ from sparsesplat.engine.losses import (
     shape_regularizer,
 )
 from sparsesplat.engine.train.config import (
-    PRESET_ITERATIONS,
-    PRESETS,
     REFERENCE_ITERATIONS,
+    ColorConfig,
     ConfigError,
     TrainConfig,
-    parse_override,
-    preset,
 )
+from sparsesplat.engine.train.overrides import parse_override
+from sparsesplat.engine.train.presets import PRESET_ITERATIONS, PRESETS, preset
 from sparsesplat.engine.train.schedule import position_lr
 from tests.engine.numerics import FLOOR_ULPS, UNIT_ROUNDOFF, assert_float32_close
 
@@ -229,7 +228,7 @@ def test_sh_color_allocates_only_what_it_uses() -> None:
     assert rest.shape == (4, 8, 3)
     model = SHColor(3)
     for it in range(1, 3001):
-        model.step_hook(it)
+        model.step_hook(it, it - 1)
     assert model.active_degree == 3
 
 
@@ -348,7 +347,7 @@ def test_presets_and_config_errors() -> None:
     for name in PRESETS:
         cfg = preset(name)
         assert TrainConfig.from_dict(cfg.to_dict()) == cfg, name
-    assert preset("dtu").patch_min == 17 and preset("blender").soft_depth is False
+    assert preset("dtu").depth.patch_min == 17 and preset("blender").depth.soft is False
     assert preset("llff", iterations=10).iterations == 10
     with pytest.raises(ConfigError, match="nonsense"):
         preset("llff", nonsense=1)
@@ -356,7 +355,7 @@ def test_presets_and_config_errors() -> None:
         preset("nope")
     with pytest.raises(ConfigError, match="patch"):
         preset("llff", patch_min=9, patch_max=3)
-    with pytest.raises(ConfigError, match="sh_degree"):
+    with pytest.raises(ConfigError, match=r"color\.sh_degree"):
         preset("llff", color_model="sh", sh_degree=4)
 
 
@@ -365,11 +364,11 @@ def test_presets_train_their_default_length_and_any_length_from_the_reference() 
     for name in PRESETS:
         assert preset(name).iterations == PRESET_ITERATIONS[name], name
     reference = preset("llff", iterations=REFERENCE_ITERATIONS)
-    assert (reference.densify_until, reference.soft_depth_start) == (6000, 1000)
+    assert (reference.densify.until, reference.depth.soft_start) == (6000, 1000)
     longer = preset("llff", iterations=3000)  # longer than the default 1500, still exact
-    assert (longer.densify_until, longer.soft_depth_start) == (3000, 500)
+    assert (longer.densify.until, longer.depth.soft_start) == (3000, 500)
     # with_iterations on the compressed default can only shorten: the reason preset() exists
-    assert preset("llff").with_iterations(3000).densify_until == 1500
+    assert preset("llff").with_iterations(3000).densify.until == 1500
     with pytest.raises(ConfigError, match="iterations must be"):
         preset("llff", iterations="many")
     with pytest.raises(ConfigError, match="iterations must be >= 1"):
@@ -378,13 +377,13 @@ def test_presets_train_their_default_length_and_any_length_from_the_reference() 
 
 def test_fixed_choice_fields_name_the_field_and_the_choices() -> None:
     """Literal-typed fields accept their values only, from overrides and from construction."""
-    assert preset("llff", color_model="sh", raster_backend="cpu").raster_backend == "cpu"
-    with pytest.raises(ConfigError, match="color_model must be 'neural' or 'sh', got 'rgb'"):
-        preset("llff", color_model="rgb")
-    with pytest.raises(ConfigError, match=r"raster_backend must be .*'reference', got 'gpu'"):
+    assert preset("llff", color_model="sh", raster_backend="cpu").raster.backend == "cpu"
+    with pytest.raises(ConfigError, match=r"color\.model must be 'neural' or 'sh', got 'rgb'"):
+        preset("llff", **{"color.model": "rgb"})
+    with pytest.raises(ConfigError, match=r"raster\.backend must be .*'reference', got 'gpu'"):
         preset("llff", raster_backend="gpu")
-    with pytest.raises(ConfigError, match="color_model"):
-        TrainConfig(color_model="rgb").validate()  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"color\.model"):
+        TrainConfig(color=ColorConfig(model="rgb")).validate()  # type: ignore[arg-type]
 
 
 def test_with_iterations_compresses_the_schedule(seed: int) -> None:
@@ -393,13 +392,14 @@ def test_with_iterations_compresses_the_schedule(seed: int) -> None:
     short = base.with_iterations(n)
     factor = n / base.iterations
     assert short.iterations == n
-    assert short.densify_until == round(base.densify_until * factor)
-    assert short.soft_depth_start == round(base.soft_depth_start * factor)
-    assert short.lr_means_steps == round(base.lr_means_steps * factor)
-    assert short.clean_iterations[-1] == n and len(short.clean_iterations) <= 7, f"n={n}"
-    assert short.densify_interval == base.densify_interval  # statistics need ~100 iterations
+    assert short.densify.until == round(base.densify.until * factor)
+    assert short.depth.soft_start == round(base.depth.soft_start * factor)
+    assert short.optim.lr_means_steps == round(base.optim.lr_means_steps * factor)
+    clean = short.densify.clean_iterations
+    assert clean[-1] == n and len(clean) <= 7, f"n={n}"
+    assert short.densify.interval == base.densify.interval  # statistics need ~100 iterations
     longer = base.with_iterations(9000)
-    assert longer.iterations == 9000 and longer.densify_until == base.densify_until
+    assert longer.iterations == 9000 and longer.densify.until == base.densify.until
     with pytest.raises(ConfigError, match="iterations"):
         base.with_iterations(0)
 

@@ -87,5 +87,5 @@ def test_a_gate_that_keeps_no_view_is_the_no_depth_run() -> None:
 
 @pytest.mark.parametrize("bad", [1.5, -2.0])
 def test_thresholds_outside_the_correlation_range_are_config_errors(bad: float) -> None:
-    with pytest.raises(ConfigError, match="depth_min_agreement"):
+    with pytest.raises(ConfigError, match=r"depth\.min_agreement"):
         small(depth_min_agreement=bad)

@@ -19,12 +19,11 @@ from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import preset
-from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.train.config import ConfigError, NearPruneConfig
 from sparsesplat.engine.train.densify import ModelCollapsed
 from sparsesplat.engine.train.near_prune import (
     NearPrune,
     NearPruneSchedule,
-    NearPruneSettings,
     near_prune_mask,
 )
 
@@ -197,8 +196,7 @@ def test_render_path_cameras_are_valid_cameras() -> None:
 
 
 def _part(scene: Scene, radius: float = 0.5, every: int = 25, after: int = 0) -> NearPrune:
-    settings = NearPruneSettings(True, radius, NearPruneSchedule(every=every, after=after))
-    return NearPrune(settings, scene)
+    return NearPrune(NearPruneConfig(True, radius, start=after, every=every), scene)
 
 
 def _model_near(centres: torch.Tensor, radius: float, seed: int) -> tuple[Gaussians, torch.Tensor]:
@@ -251,7 +249,7 @@ def test_a_radius_that_covers_everything_is_a_clear_error() -> None:
     scene, _ = make_scene(seed=0)
     part = _part(scene, radius=1e6, every=1)
     model = Gaussians.from_points(torch.randn(10, 3), 0.5, {})
-    with pytest.raises(ModelCollapsed, match="near_prune_radius"):
+    with pytest.raises(ModelCollapsed, match=r"near_prune\.radius"):
         part.step(1, model, None)  # type: ignore[arg-type]
 
 
@@ -265,17 +263,19 @@ def test_eval_keep_leaves_out_what_is_near_the_rendered_cameras(seed: int) -> No
 
 
 @pytest.mark.parametrize(
-    ("field", "value"), [("near_prune_radius", 0.0), ("near_prune_radius", math.inf),
-                         ("near_prune_every", 0)]
+    ("field", "value"), [("near_prune.radius", 0.0), ("near_prune.radius", math.inf),
+                         ("near_prune.every", 0)]
 )  # fmt: skip
 def test_bad_settings_are_config_errors(field: str, value: float) -> None:
     with pytest.raises(ConfigError, match=field):
         preset("llff", near_prune=True, **{field: value})
+    with pytest.raises(ConfigError, match=field):  # the old flat name, same field
+        preset("llff", near_prune=True, **{field.replace(".", "_"): value})
 
 
 def test_start_is_compressed_with_the_schedule() -> None:
     cfg = preset("llff", near_prune=True).with_iterations(1500)
-    assert cfg.near_prune_start == 500  # 2000 of 6000, scaled by 1500 / 6000
+    assert cfg.near_prune.start == 500  # 2000 of 6000, scaled by 1500 / 6000
 
 
 @pytest.mark.shared_data

@@ -1,4 +1,4 @@
-"""Opacity decay (``opacity_decay``): every opacity scaled after each step of the
+"""Opacity decay (``densify.opacity_decay``): every opacity scaled after each step of the
 densification window, nothing after it."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from .test_trainer import small
 def _opacity_after_first_step(seed: int, **overrides: object) -> torch.Tensor:
     """Opacities (float64) after iteration 1 of a no-depth smoke run."""
     scene, priors = make_scene(seed=seed)
-    trainer = Trainer(scene, small(seed=seed, depth_prior="none", **overrides), priors)
+    trainer = Trainer(scene, small(seed=seed, **{"depth.prior": "none"}, **overrides), priors)
     trainer.iteration = 1
     trainer._step()
     assert bool(torch.isfinite(trainer.gaussians.opacity_logits).all())
@@ -31,10 +31,11 @@ def test_decay_scales_every_opacity_inside_the_densification_window(seed: int) -
     factor (to the float32 rounding of a logit near 0: relative 1e-5); at or past
     densify_until the two runs are bit-identical."""
     factor = 0.9
+    decay = {"densify.opacity_decay": factor}
     plain = _opacity_after_first_step(seed, densify_until=3)
-    decayed = _opacity_after_first_step(seed, densify_until=3, opacity_decay=factor)
+    decayed = _opacity_after_first_step(seed, densify_until=3, **decay)
     assert float((decayed / plain - factor).abs().max()) < 1e-5
-    outside = _opacity_after_first_step(seed, densify_until=1, opacity_decay=factor)
+    outside = _opacity_after_first_step(seed, densify_until=1, **decay)
     assert torch.equal(outside, _opacity_after_first_step(seed, densify_until=1))
 
 
@@ -42,10 +43,10 @@ def test_decay_keeps_extreme_logits_finite() -> None:
     """Logits of +-100 (opacity 1 and 0 in float32) decay to finite values with the right
     opacity ratio."""
     scene, priors = make_scene(seed=0)
-    t = Trainer(scene, small(depth_prior="none"), priors)
+    t = Trainer(scene, small(**{"depth.prior": "none"}), priors)
     with torch.no_grad():
         t.gaussians.opacity_logits[:2] = torch.tensor([100.0, -100.0])
-    t._decay_opacity(0.995)
+    t.gaussians.decay_opacity(0.995)
     x = t.gaussians.opacity_logits[:2].double()
     assert bool(torch.isfinite(x).all())
     assert math.isclose(float(torch.sigmoid(x[0])), 0.995, rel_tol=1e-6)
@@ -55,4 +56,4 @@ def test_decay_keeps_extreme_logits_finite() -> None:
 @pytest.mark.parametrize("bad", [0.0, -0.5, 1.5, float("nan")])
 def test_decay_factor_is_checked(bad: float) -> None:
     with pytest.raises(ConfigError, match="opacity_decay"):
-        small(opacity_decay=bad)
+        small(**{"densify.opacity_decay": bad})

@@ -243,7 +243,7 @@ def test_interim_evaluation_samples_evenly_spaced_views(seed: int) -> None:
     same_model = Trainer(subset, small(), priors)
     assert trainer.evaluate(3) == same_model.evaluate(None)
     assert trainer.evaluate(None) != trainer.evaluate(3)
-    with pytest.raises(ConfigError, match="eval_max_views"):
+    with pytest.raises(ConfigError, match=r"record\.eval_max_views"):
         small(eval_max_views=0)
 
 

@@ -39,7 +39,7 @@ def test_parts_switched_off_are_not_built() -> None:
     scene, priors = make_scene(seed=0)
     t = Trainer(scene, small(dropout=False), priors)
     assert t.dropout is None and t.init_note is None and t.dtu is None
-    assert not t.depth.settings.fill_background  # type: ignore[union-attr]
+    assert not t.depth.fill_background  # type: ignore[union-attr]
 
 
 # -- dropout ---------------------------------------------------------------------------------
@@ -306,7 +306,7 @@ def test_consistency_with_a_single_view_has_no_partner() -> None:
 
 def test_consistency_start_is_compressed_with_the_schedule() -> None:
     cfg = preset("llff", consistency_weight=0.1, consistency_start=3000).with_iterations(150)
-    assert cfg.iterations == 150 and cfg.consistency_start == 300  # 3000 at 1500 iterations
+    assert cfg.iterations == 150 and cfg.consistency.start == 300  # 3000 at 1500 iterations
 
 
 # -- near-plane pruning ------------------------------------------------------------------------

@@ -1,0 +1,361 @@
+"""Reading values into a :class:`TrainConfig`: dotted names, the old flat names, type hints.
+
+One rule for every way a value arrives: ``--set part.field=JSON`` on the CLI, bench-quality's
+``set:`` variants, a job's spec, a preset's data and a stored config read back from a
+checkpoint. Names are dotted (``depth.soft_start``) or top-level (``seed``); the flat names of
+earlier versions (``soft_depth_start``) are accepted through :data:`FLAT_NAMES`, so old
+checkpoints and old command lines keep working. Values are checked and converted against the
+dataclass type hints (ints are floats, lists are tuples), so a new field needs no checker.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import functools
+import json
+import math
+import types
+import typing
+from typing import Any, Literal
+
+from sparsesplat.engine.train.config import ConfigError, TrainConfig
+
+FLAT_NAMES: dict[str, str] = {
+    "init": "init.method",
+    "init_box": "init.box",
+    "init_points": "init.points",
+    "init_points_density": "init.points_density",
+    "init_points_min": "init.points_min",
+    "init_points_max": "init.points_max",
+    "init_opacity": "init.opacity",
+    "dense_init_points": "init.dense_points",
+    "dense_init_min_confidence": "init.dense_min_confidence",
+    "color_model": "color.model",
+    "sh_degree": "color.sh_degree",
+    "sh_degree_interval": "color.sh_degree_interval",
+    "hash_log2_size": "color.hash_log2_size",
+    "hash_finest_resolution": "color.hash_finest_resolution",
+    "lr_means_init": "optim.lr_means_init",
+    "lr_means_final": "optim.lr_means_final",
+    "lr_means_start": "optim.lr_means_start",
+    "lr_means_steps": "optim.lr_means_steps",
+    "lr_opacity": "optim.lr_opacity",
+    "lr_scaling": "optim.lr_scaling",
+    "lr_rotation": "optim.lr_rotation",
+    "lr_hash_grid": "optim.lr_hash_grid",
+    "lr_mlp": "optim.lr_mlp",
+    "lr_sh": "optim.lr_sh",
+    "adam_eps": "optim.adam_eps",
+    "auxiliary_step": "optim.auxiliary_step",
+    "lambda_dssim": "photometric.lambda_dssim",
+    "shape_weight": "photometric.shape_weight",
+    "scale_weight": "photometric.scale_weight",
+    "opacity_weight": "photometric.opacity_weight",
+    "depth_prior": "depth.prior",
+    "depth_min_agreement": "depth.min_agreement",
+    "hard_depth": "depth.hard",
+    "soft_depth": "depth.soft",
+    "hard_opacity": "depth.hard_opacity",
+    "hard_depth_start": "depth.hard_start",
+    "soft_depth_start": "depth.soft_start",
+    "depth_every": "depth.every",
+    "depth_until": "depth.until",
+    "soft_depth_ema_gate": "depth.soft_ema_gate",
+    "patch_min": "depth.patch_min",
+    "patch_max": "depth.patch_max",
+    "error_tolerance": "depth.error_tolerance",
+    "depth_global_weight": "depth.global_weight",
+    "depth_local_weight": "depth.local_weight",
+    "depth_smooth_weight": "depth.smooth_weight",
+    "depth_smooth_start": "depth.smooth_start",
+    "depth_empty_background": "depth.empty_background",
+    "densify_from": "densify.start",
+    "densify_until": "densify.until",
+    "densify_interval": "densify.interval",
+    "densify_grad_threshold": "densify.grad_threshold",
+    "percent_dense": "densify.percent_dense",
+    "split_opacity_threshold": "densify.split_opacity_threshold",
+    "prune_opacity": "densify.prune_opacity",
+    "opacity_reset_interval": "densify.opacity_reset_interval",
+    "max_screen_size": "densify.max_screen_size",
+    "max_world_size": "densify.max_world_size",
+    "max_gaussians": "densify.max_gaussians",
+    "clean_iterations": "densify.clean_iterations",
+    "eval_interval_s": "record.eval_interval_s",
+    "eval_every": "record.eval_every",
+    "eval_max_views": "record.eval_max_views",
+    "eval_lpips": "record.eval_lpips",
+    "checkpoint_interval_s": "record.checkpoint_interval_s",
+    "export": "record.export",
+    "profile": "record.profile",
+    "divergence_check_every": "guard.check_every",
+    "divergence_step_limits": "guard.step_limits",
+    "dropout": "dropout.enabled",
+    "dropout_rate": "dropout.rate",
+    "dropout_progressive": "dropout.progressive",
+    "dtu_background": "dtu.enabled",
+    "dtu_blacken_target": "dtu.blacken_target",
+    "dtu_depth_fill": "dtu.depth_fill",
+    "dtu_alpha_loss": "dtu.alpha_loss",
+    "dtu_black_white": "dtu.black_white",
+    "consistency_weight": "consistency.weight",
+    "consistency_start": "consistency.start",
+    "consistency_occlusion": "consistency.occlusion",
+    "consistency_partners": "consistency.partners",
+    "near_prune": "near_prune.enabled",
+    "near_prune_radius": "near_prune.radius",
+    "near_prune_start": "near_prune.start",
+    "near_prune_every": "near_prune.every",
+    "raster_backend": "raster.backend",
+    "raster_near": "raster.near",
+    "eps2d": "raster.eps2d",
+}
+"""The flat field names of earlier versions (stored in their checkpoints, used in old
+``--set`` lines and scripts) → the dotted name of the same field now."""
+
+RETIRED_FIELDS = frozenset({"init_points_per_unit"})
+"""Fields of earlier versions that no longer exist, ignored when a stored config is read."""
+
+BACKGROUND_NAMES: dict[str, tuple[float, float, float]] = {
+    "white": (1.0, 1.0, 1.0),
+    "black": (0.0, 0.0, 0.0),
+    "gray": (0.5, 0.5, 0.5),
+    "grey": (0.5, 0.5, 0.5),
+}
+"""Names accepted for ``background``."""
+
+
+class _Mismatch(Exception):
+    """A value does not fit a type hint (turned into a ConfigError naming the field)."""
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+@functools.cache
+def _sections() -> dict[str, type]:
+    """Section name → its dataclass (the TrainConfig fields that are dataclasses)."""
+    return {
+        name: hint
+        for name, hint in _hints(TrainConfig).items()
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint)
+    }
+
+
+@functools.cache
+def field_names() -> dict[str, Any]:
+    """Every settable name, dotted for section fields, → its type hint."""
+    out: dict[str, Any] = {}
+    sections = _sections()
+    for name, hint in _hints(TrainConfig).items():
+        if name in sections:
+            for sub, sub_hint in _hints(sections[name]).items():
+                out[f"{name}.{sub}"] = sub_hint
+        else:
+            out[name] = hint
+    return out
+
+
+def parse_background(value: Any) -> tuple[float, float, float] | None:
+    """``None``, a name from :data:`BACKGROUND_NAMES` or 3 numbers in [0, 1] -> RGB tuple;
+    anything else raises :class:`ConfigError` saying what is accepted."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        key = value.strip().lower()
+        if key in BACKGROUND_NAMES:
+            return BACKGROUND_NAMES[key]
+    else:
+        try:
+            rgb = tuple(float(v) for v in value)
+        except (TypeError, ValueError):
+            rgb = ()
+        if len(rgb) == 3 and all(math.isfinite(c) and 0.0 <= c <= 1.0 for c in rgb):
+            return (rgb[0], rgb[1], rgb[2])
+    raise ConfigError(
+        f"background must be white, black, gray or 3 numbers in [0, 1] like [1, 1, 1], "
+        f"got {value!r}"
+    )
+
+
+def describe(hint: Any) -> str:
+    """A type hint in words for a message (``int | None``, ``'neural' or 'sh'``)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        listed = [repr(a) for a in args]
+        return f"{', '.join(listed[:-1])} or {listed[-1]}" if len(listed) > 1 else listed[0]
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(describe(a) for a in args)
+    if hint is type(None):
+        return "None"
+    if origin is not None:
+        inner = ", ".join("..." if a is Ellipsis else describe(a) for a in args)
+        return f"{origin.__name__}[{inner}]"
+    return getattr(hint, "__name__", str(hint))
+
+
+def coerce(hint: Any, value: Any) -> Any:
+    """``value`` checked against ``hint`` and converted (int → float, list → tuple); raises
+    ``_Mismatch`` when it does not fit."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin is Literal:
+        if any(value == a and type(value) is type(a) for a in args):
+            return value
+        raise _Mismatch
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return coerce(arg, value)
+            except _Mismatch:
+                pass
+        raise _Mismatch
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise _Mismatch
+    if hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise _Mismatch
+    if hint is float:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        raise _Mismatch
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise _Mismatch
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise _Mismatch
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(coerce(args[0], v) for v in value)
+        if len(value) != len(args):
+            raise _Mismatch
+        return tuple(coerce(a, v) for a, v in zip(args, value, strict=True))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise _Mismatch
+        return {coerce(args[0], k): coerce(args[1], v) for k, v in value.items()}
+    raise _Mismatch
+
+
+def _suggest(name: str) -> str:
+    candidates: dict[str, str] = {}
+    for dotted in field_names():
+        candidates[dotted] = dotted
+        candidates.setdefault(dotted.rsplit(".", 1)[-1], dotted)
+    for flat, dotted in FLAT_NAMES.items():
+        candidates.setdefault(flat, dotted)
+    close = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.6)
+    return f"{name} (did you mean {candidates[close[0]]}?)" if close else name
+
+
+def resolve(name: str) -> str:
+    """The dotted name of field ``name`` (dotted, top-level or an old flat name);
+    :class:`ConfigError` with a did-you-mean for an unknown one."""
+    if name in field_names():
+        return name
+    if name in FLAT_NAMES:
+        return FLAT_NAMES[name]
+    raise ConfigError(f"unknown TrainConfig field(s): {_suggest(name)}")
+
+
+def flatten(data: dict[str, Any]) -> dict[str, Any]:
+    """A nested config dict (``to_dict``), a flat one of an earlier version, or a mix → one
+    dict of names to values (sections' dicts become dotted names)."""
+    out: dict[str, Any] = {}
+    sections = _sections()
+    for key, value in data.items():
+        if key in sections and isinstance(value, dict):
+            for sub, sub_value in value.items():
+                out[f"{key}.{sub}"] = sub_value
+        else:
+            out[key] = value
+    return out
+
+
+def convert(name: str, value: Any) -> Any:
+    """``value`` for dotted field ``name``, checked against its type hint and converted;
+    :class:`ConfigError` naming the field and the type otherwise."""
+    if name == "background":
+        return parse_background(value)
+    hint = field_names()[name]
+    try:
+        return coerce(hint, value)
+    except _Mismatch:
+        raise ConfigError(f"{name} must be {describe(hint)}, got {value!r}") from None
+
+
+def apply_overrides(
+    config: TrainConfig, overrides: dict[str, Any], stored: bool = False
+) -> TrainConfig:
+    """A validated copy of ``config`` with ``overrides`` (name → value, names as
+    :func:`resolve` reads them) set. ``stored``: the dict is a stored config, whose retired
+    fields (:data:`RETIRED_FIELDS`) are dropped. Unknown names all named in one error."""
+    unknown = [
+        k
+        for k in overrides
+        if k not in field_names() and k not in FLAT_NAMES and not (stored and k in RETIRED_FIELDS)
+    ]
+    if unknown:
+        raise ConfigError(
+            f"unknown TrainConfig field(s): {', '.join(_suggest(k) for k in sorted(unknown))}"
+        )
+    top: dict[str, Any] = {}
+    per_section: dict[str, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        if stored and key in RETIRED_FIELDS:
+            continue
+        name = resolve(key)
+        converted = convert(name, value)
+        if "." in name:
+            section, sub = name.split(".", 1)
+            per_section.setdefault(section, {})[sub] = converted
+        else:
+            top[name] = converted
+    for section, changes in per_section.items():
+        top[section] = dataclasses.replace(getattr(config, section), **changes)
+    return dataclasses.replace(config, **top).validate()
+
+
+def check_types(config: TrainConfig) -> None:
+    """Raise :class:`ConfigError` naming the first field of ``config`` whose value does not
+    fit its type hint (a config built in code rather than through :func:`apply_overrides`)."""
+    for name, hint in field_names().items():
+        section, _, sub = name.partition(".")
+        value = getattr(getattr(config, section), sub) if sub else getattr(config, section)
+        if name == "background":
+            continue
+        try:
+            coerce(hint, value)
+        except _Mismatch:
+            raise ConfigError(f"{name} must be {describe(hint)}, got {value!r}") from None
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``FIELD=JSON`` → (field, value): the value as JSON when it parses (``0.3``, ``true``,
+    ``[1, 2]``), else the plain string (``background=white``). The rule of the CLI's ``--set``
+    and bench-quality's ``set:`` variants; the field (dotted, e.g. ``depth.soft_start``, or an
+    old flat name) and the value are checked by :func:`apply_overrides`."""
+    key, sep, value = item.partition("=")
+    if not sep or not key:
+        raise ConfigError(f"{item!r}: expected FIELD=JSON, e.g. depth.soft_start=500")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def flat_dict(config: TrainConfig) -> dict[str, Any]:
+    """Every field of ``config`` by dotted name (the form ``--set`` and the docs use)."""
+    return flatten(config.to_dict())

@@ -1,0 +1,105 @@
+"""The presets: named training recipes, as data (dotted overrides on the TrainConfig defaults).
+
+The defaults of :class:`TrainConfig` are the reference's 6000-iteration LLFF recipe; a preset
+names what differs. The measurements behind each choice are in docs/experiments/ (linked from
+docs/trainer.md); ``sparsesplat train --help`` says when to use each preset.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sparsesplat.engine.train.config import ConfigError, TrainConfig
+from sparsesplat.engine.train.overrides import apply_overrides, convert
+
+_BLENDER: dict[str, Any] = {
+    "preset": "blender",
+    "background": (1.0, 1.0, 1.0),
+    "init.box": ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
+    "init.points": 10_000,
+    "optim.lr_means_init": 0.00016,
+    "optim.lr_means_final": 0.0000016,
+    "optim.lr_means_start": 5000,
+    "optim.lr_means_steps": 1000,
+    "optim.lr_scaling": 0.005,
+    "photometric.shape_weight": 0.0,
+    "photometric.scale_weight": 0.0,
+    "photometric.opacity_weight": 0.0,
+    "depth.soft": False,
+    "depth.every": 10,
+    "depth.until": 6000,
+    "depth.empty_background": True,
+    "depth.error_tolerance": 0.001,
+    "depth.smooth_weight": 0.0,
+    "densify.grad_threshold": 0.0005,
+    "densify.clean_iterations": (1, 1000, 2000, 3000, 4500, 6000),
+}
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # LLFF: the defaults, plus DropGaussian (not in the reference).
+    "llff": {"preset": "llff", "dropout.enabled": True},
+    # DTU: 3 views at 400x300, hard + EMA-gated soft depth, larger patches, the reference's
+    # black-background pieces, a dense init and the warp-consistency term at weight 0.3 (the
+    # last two not in the reference).
+    "dtu": {
+        "preset": "dtu",
+        "init.method": "dense",
+        "init.points": 1000,
+        "dtu.enabled": True,
+        "consistency.weight": 0.3,
+        "optim.lr_means_init": 0.0016,
+        "optim.lr_means_final": 0.000016,
+        "photometric.lambda_dssim": 0.6,
+        "photometric.shape_weight": 0.005,
+        "photometric.scale_weight": 0.005,
+        "photometric.opacity_weight": 0.001,
+        "depth.patch_min": 17,
+        "depth.patch_max": 53,
+        "depth.error_tolerance": 0.01,
+        "depth.soft_ema_gate": 0.1,
+        "depth.smooth_weight": 0.0,
+        "densify.grad_threshold": 0.001,
+        "densify.percent_dense": 0.1,
+        "densify.clean_iterations": (1, 100, 1000, 2000, 3000, 4500, 6000),
+    },
+    # Blender: 8 views at 400x400, white background, the neural recipe of drums/materials:
+    # hard depth only, every 10th iteration, until the end of densification.
+    "blender": _BLENDER,
+    # Objects on an empty background (images with alpha): the Blender recipe without the parts
+    # that only fit NeRF-synthetic's frame (its fixed [-1, 1]^3 init box, its forced white).
+    "object": {k: v for k, v in _BLENDER.items() if k not in ("init.box", "background")}
+    | {"preset": "object"},
+    # User uploads: the LLFF recipe (forward-facing phone captures are the common case) with
+    # the background taken from the scene and a lighter point count.
+    "default": {"preset": "default", "init.points_max": 50_000, "dropout.enabled": True},
+}
+"""Preset name → dotted field overrides on top of the TrainConfig defaults."""
+
+PRESET_ITERATIONS: dict[str, int] = {
+    "llff": 1500,
+    "default": 1500,
+    "blender": 1500,
+    "object": 1500,
+    "dtu": 1500,
+}
+"""Preset name → the number of iterations it trains when none is asked for: the run length
+whose held-out error was best on the shared scenes of its format, measured on 2 CPU cores
+(docs/experiments/)."""
+
+
+def preset(name: str, iterations: int | None = None, **overrides: Any) -> TrainConfig:
+    """The config of preset ``name``: its reference schedule compressed to ``iterations``
+    (default :data:`PRESET_ITERATIONS`), then ``overrides`` applied as given (dotted names
+    via ``**{"depth.soft_start": 500}``, or the old flat names).
+
+    Compressing always starts from the reference schedule, so any length is exact, longer
+    than the default included (``TrainConfig.with_iterations`` on an already compressed
+    config can only shorten it). ``overrides`` are the values the run uses: a schedule field
+    set here is not compressed. ``ConfigError`` names a bad preset, field or value."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
+    if iterations is not None:
+        convert("iterations", iterations)
+    length = PRESET_ITERATIONS[name] if iterations is None else iterations
+    reference = apply_overrides(TrainConfig(), PRESETS[name])
+    return apply_overrides(reference.with_iterations(length), overrides)
