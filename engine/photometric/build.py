@@ -4,9 +4,8 @@ Same conventions as the other native extensions (engine/native_build.py): compil
 ``torch.utils.cpp_extension.load`` at first use into ``$TORCH_EXTENSIONS_DIR`` (torch's default
 cache when unset), in a directory keyed by a hash of the sources and flags, reused by later
 processes and other checkouts of the same sources. The build targets x86-64-v3 (AVX2 + FMA).
-``-ffp-contract=off``: the kernel writes its FMAs explicitly (the blur taps), and everything else
-rounds as written, so the target statistics and the prediction's moments of the same image come
-out bitwise equal (an image compared with itself has sxy == sxx == var exactly).
+``-ffp-contract=off``: the kernel writes its FMAs explicitly (the blur taps) and everything else
+rounds as written, so its rounding does not depend on the compiler's contraction choices.
 """
 
 from __future__ import annotations

@@ -115,12 +115,3 @@ def photometric_native(
         float(c1),
         float(c2),
     )
-
-
-def target_stats_native(image: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
-    """``image``'s (float32 CPU (C, H, W)) blurred mean and variance under the separable window
-    ``weights``, with the blur code of :func:`photometric_native`."""
-    mu, var = load_extension().target_stats(
-        image.detach().contiguous(), weights.detach().to(torch.float32).contiguous()
-    )
-    return mu, var

@@ -63,36 +63,25 @@ inline void horizontal(const float* __restrict pad, int64_t W, const Window& win
   }
 }
 
-// Vertical pass of row i of the (H, W) plane x: vx = B_v(x), vp = B_v(x*x) and, when y is not
-// null, vq = B_v(x*y). The products are rounded before weighting, as the torch reference
+// Vertical pass of row i of the (H, W) planes x and y: vx = B_v(x), vp = B_v(x*x) and
+// vq = B_v(x*y). The products are rounded before weighting, as the torch reference
 // blurs the stacked maps x, x*x, x*y.
 inline void vertical_moments(const float* __restrict x, const float* __restrict y, int64_t H,
                              int64_t W, int64_t i, const Window& win, float* __restrict vx,
                              float* __restrict vp, float* __restrict vq) {
   int t0, t1;
   tap_range(win, i, H, t0, t1);
-  for (int64_t j = 0; j < W; ++j) vx[j] = vp[j] = 0.f;
-  if (y) {
-    for (int64_t j = 0; j < W; ++j) vq[j] = 0.f;
-  }
+  for (int64_t j = 0; j < W; ++j) vx[j] = vp[j] = vq[j] = 0.f;
   for (int t = t0; t < t1; ++t) {
     const float wt = win.w[t];
     const int64_t r = i + t - win.radius;
     const float* __restrict xr = x + r * W;
-    if (y) {
-      const float* __restrict yr = y + r * W;
-      for (int64_t j = 0; j < W; ++j) {
-        const float xv = xr[j];
-        vx[j] = std::fma(wt, xv, vx[j]);
-        vp[j] = std::fma(wt, xv * xv, vp[j]);
-        vq[j] = std::fma(wt, xv * yr[j], vq[j]);
-      }
-    } else {
-      for (int64_t j = 0; j < W; ++j) {
-        const float xv = xr[j];
-        vx[j] = std::fma(wt, xv, vx[j]);
-        vp[j] = std::fma(wt, xv * xv, vp[j]);
-      }
+    const float* __restrict yr = y + r * W;
+    for (int64_t j = 0; j < W; ++j) {
+      const float xv = xr[j];
+      vx[j] = std::fma(wt, xv, vx[j]);
+      vp[j] = std::fma(wt, xv * xv, vp[j]);
+      vq[j] = std::fma(wt, xv * yr[j], vq[j]);
     }
   }
 }
@@ -271,37 +260,6 @@ std::vector<torch::Tensor> forward(torch::Tensor pred, torch::Tensor target, tor
   return {torch::tensor((float)loss, pred.options()).reshape({}), grad};
 }
 
-// The target-only statistics: (mu, var) = (B(y), B(y*y) - B(y)^2) per channel of y (C, H, W),
-// with the same blur code as the loss (so an image compared with itself has sxy == sxx == var).
-std::vector<torch::Tensor> target_stats(torch::Tensor image, torch::Tensor weights) {
-  check_image(image, "ssim image");
-  const Window win = make_window(weights);
-  const int64_t C = image.size(0), H = image.size(1), W = image.size(2);
-  const int64_t plane = H * W, tasks = C * H;
-  auto mu = torch::empty_like(image), var = torch::empty_like(image);
-  const float* py = image.data_ptr<float>();
-  float* pm = mu.data_ptr<float>();
-  float* pv = var.data_ptr<float>();
-#pragma omp parallel num_threads(n_threads())
-  {
-    Scratch s(W, win.radius);
-    float* P = s.row_p.data();
-#pragma omp for schedule(static)
-    for (int64_t task = 0; task < tasks; ++task) {
-      const int64_t c = task / H, i = task % H;
-      const int64_t base = c * plane, row = base + i * W;
-      vertical_moments(py + base, nullptr, H, W, i, win, s.pad_x.data() + win.radius,
-                       s.pad_p.data() + win.radius, nullptr);
-      horizontal(s.pad_x.data(), W, win, pm + row);
-      horizontal(s.pad_p.data(), W, win, P);
-      const float* __restrict m = pm + row;
-      float* __restrict v = pv + row;
-      for (int64_t j = 0; j < W; ++j) v[j] = P[j] - m[j] * m[j];
-    }
-  }
-  return {mu, var};
-}
-
 std::string variant_name() { return "avx2"; }
 
 }  // namespace
@@ -309,6 +267,5 @@ std::string variant_name() { return "avx2"; }
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward,
         "L1 + lambda * (1 - SSIM) of (C, H, W) images: (loss, d loss / d pred or undefined)");
-  m.def("target_stats", &target_stats, "Blurred mean and variance (C, H, W) of an SSIM target");
   m.def("variant", &variant_name, "Instruction-set level the extension was built for");
 }
