@@ -12,8 +12,16 @@ import torch
 from torch import Tensor
 from torch.nn import functional as F
 
+from sparsesplat.engine.photometric import native as photometric_native
+
 _STD_FLOOR = 1e-8
 """Floor on the normalization epsilon so constant depth (zero std) gives 0, never 0/0."""
+
+
+SSIM_C1 = 0.01**2
+"""SSIM's stabilizer of the means' term (3DGS's (0.01 * data range)² for [0, 1] images)."""
+SSIM_C2 = 0.03**2
+"""SSIM's stabilizer of the (co)variances' term."""
 
 
 def l1_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -72,7 +80,7 @@ def gaussian_window_ssim(
     mu_x = blurred[:, :c]
     sxx = blurred[:, c : 2 * c] - mu_x**2
     sxy = blurred[:, 2 * c :] - mu_x * t.mu
-    c1, c2 = 0.01**2, 0.03**2
+    c1, c2 = SSIM_C1, SSIM_C2
     num = (2 * mu_x * t.mu + c1) * (2 * sxy + c2)
     den = (mu_x**2 + t.mu**2 + c1) * (sxx + t.var + c2)
     return (num / den).mean()
@@ -82,11 +90,19 @@ def photometric_loss(
     pred: Tensor, target: Tensor, lambda_dssim: float, ssim_target: SSIMTarget | None = None
 ) -> Tensor:
     """DNGaussian's colour loss: L1 + lambda * (1 - SSIM) (L1 is NOT scaled by 1 - lambda).
-    ``ssim_target``: ``target``'s precomputed SSIM statistics, if the caller keeps them."""
+    ``ssim_target``: ``target``'s precomputed SSIM statistics, if the caller keeps them.
+    float32 CPU images take the fused native kernel (engine/photometric; value and gradient in
+    one pass), unless $SPARSESPLAT_PHOTOMETRIC=torch; the code below is its reference."""
     if lambda_dssim == 0:
         return l1_loss(pred, target)
+    t = ssim_target or SSIMTarget(target)
+    if photometric_native.uses_native(pred, target, t.image, t.mu[0], t.var[0]):
+        window = _gaussian_1d(t.window, t.sigma, pred)
+        return photometric_native.photometric_native(
+            pred, target, t.image, t.mu, t.var, window, lambda_dssim, SSIM_C1, SSIM_C2
+        )
     l1 = l1_loss(pred, target)
-    return l1 + lambda_dssim * (1.0 - gaussian_window_ssim(pred, ssim_target or target))
+    return l1 + lambda_dssim * (1.0 - gaussian_window_ssim(pred, t))
 
 
 def patchify(depth: Tensor, patch: int) -> Tensor:

@@ -9,6 +9,10 @@ bookkeeping and the final Adam step. Densification itself is disabled so N stays
 A second table times the neural colour field alone (forward, and backward to the centres and all
 field parameters) with the native kernels and with the torch reference hash grid + SH
 (``--field-backends``), at the same sizes.
+
+A third table times the photometric loss L1 + 0.2 * D-SSIM alone (forward and backward to the
+rendered image, target statistics precomputed as in training) with the native fused kernel and
+with the torch reference (``--loss-backends``), at the iteration's image size.
 """
 
 from __future__ import annotations
@@ -72,6 +76,44 @@ def measure_field(n: int, backend: str, iterations: int) -> dict[str, float | in
             "bwd_s": bwd / iterations}  # fmt: skip
 
 
+def measure_photometric(
+    backend: str, iterations: int, width: int = 504, height: int = 378
+) -> dict[str, float | int | str]:
+    """Mean seconds of the photometric loss's forward and backward on a ``width`` x ``height``
+    RGB image with ``backend`` ('native' or 'torch', via $SPARSESPLAT_PHOTOMETRIC)."""
+    import os
+
+    import torch
+
+    from sparsesplat.engine.losses import SSIMTarget, photometric_loss
+    from sparsesplat.engine.photometric.native import BACKEND_ENV
+
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(3, height, width, generator=g)
+    image = (target + 0.1 * torch.randn(3, height, width, generator=g)).clamp(0, 1)
+    stats = SSIMTarget(target)
+    previous = os.environ.get(BACKEND_ENV)
+    os.environ[BACKEND_ENV] = backend
+    fwd = bwd = 0.0
+    try:
+        for i in range(iterations + 1):  # the first is a warm-up (extension load, allocations)
+            pred = image.clone().requires_grad_(True)
+            t0 = time.perf_counter()
+            loss = photometric_loss(pred, target, 0.2, stats)
+            t1 = time.perf_counter()
+            loss.backward()
+            t2 = time.perf_counter()
+            if i:
+                fwd, bwd = fwd + (t1 - t0), bwd + (t2 - t1)
+    finally:
+        if previous is None:
+            os.environ.pop(BACKEND_ENV, None)
+        else:
+            os.environ[BACKEND_ENV] = previous
+    return {"size": f"{width}x{height}", "backend": backend, "fwd_s": fwd / iterations,
+            "bwd_s": bwd / iterations, "total_s": (fwd + bwd) / iterations}  # fmt: skip
+
+
 def main() -> None:
     """Print and save the table."""
     parser = argparse.ArgumentParser(description=__doc__)
@@ -81,7 +123,13 @@ def main() -> None:
         "--field-backends", nargs="*", default=["native", "torch"], choices=["native", "torch"],
         help="hash-grid backends for the field-only table (none: skip it)",
     )  # fmt: skip
-    parser.add_argument("--no-iteration", action="store_true", help="only the field table")
+    parser.add_argument(
+        "--loss-backends", nargs="*", default=["native", "torch"], choices=["native", "torch"],
+        help="photometric loss implementations for the loss-only table (none: skip it)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--no-iteration", action="store_true", help="only the field and loss tables"
+    )
     args = parser.parse_args()
     print(machine_info())
     if args.field_backends:
@@ -91,6 +139,14 @@ def main() -> None:
         for fr in field_rows:
             fr["fwd_s"], fr["bwd_s"] = round(float(fr["fwd_s"]), 4), round(float(fr["bwd_s"]), 4)
         write_results("iteration_field", field_rows, ["gaussians", "backend", "fwd_s", "bwd_s"])
+    if args.loss_backends:
+        loss_rows = [measure_photometric(b, args.iterations) for b in args.loss_backends]
+        for lr in loss_rows:
+            for key in ("fwd_s", "bwd_s", "total_s"):
+                lr[key] = round(float(lr[key]), 5)
+        write_results(
+            "iteration_losses", loss_rows, ["size", "backend", "fwd_s", "bwd_s", "total_s"]
+        )
     if args.no_iteration:
         return
     rows = []

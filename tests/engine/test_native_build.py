@@ -16,6 +16,7 @@ from sparsesplat.engine import native_build
 from sparsesplat.engine.color import build as color_build
 from sparsesplat.engine.errors import RasterError
 from sparsesplat.engine.native_build import NativeExtension, build_key, stage_sources
+from sparsesplat.engine.photometric import build as photometric_build
 from sparsesplat.engine.raster import build as raster_build
 
 TOOLCHAIN = {
@@ -110,7 +111,13 @@ def test_staging_leaves_unchanged_files_alone(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "ext", [raster_build._EXTENSION, raster_build._PROJECTION, color_build._EXTENSION]
+    "ext",
+    [
+        raster_build._EXTENSION,
+        raster_build._PROJECTION,
+        color_build._EXTENSION,
+        photometric_build._EXTENSION,
+    ],
 )
 def test_a_second_checkout_reuses_the_build(ext: NativeExtension, tmp_path: Path) -> None:
     """A copy of the real sources elsewhere (a second clone) maps to the same build directory,

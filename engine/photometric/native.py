@@ -1,0 +1,117 @@
+"""Autograd wrapper and backend choice of the native photometric loss (engine/photometric/cpu/).
+
+The loss is a scalar, so the native forward computes the gradient with respect to the
+prediction in the same call and saves it; the backward only scales it by the upstream scalar.
+``engine.losses.photometric_loss`` calls this for float32 CPU images; the environment variable
+``SPARSESPLAT_PHOTOMETRIC=torch`` forces its torch implementation (the reference), ``native``
+makes unsuited inputs an error instead of a silent fallback.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.autograd.function import once_differentiable
+
+from sparsesplat.engine.photometric.build import load_extension
+
+BACKENDS = ("auto", "native", "torch")
+"""Accepted values of $SPARSESPLAT_PHOTOMETRIC ('auto' when unset: native where suited)."""
+BACKEND_ENV = "SPARSESPLAT_PHOTOMETRIC"
+"""Environment variable choosing the photometric loss implementation."""
+
+
+def backend() -> str:
+    """The requested backend from the environment; ValueError naming the variable if invalid."""
+    value = os.environ.get(BACKEND_ENV, "auto").strip().lower() or "auto"
+    if value not in BACKENDS:
+        raise ValueError(f"${BACKEND_ENV}: expected one of {BACKENDS}, got {value!r}")
+    return value
+
+
+def _suited(pred: Tensor, others: tuple[Tensor, ...]) -> bool:
+    """float32 CPU (C, H, W) images of one shape, none but ``pred`` asking for a gradient (the
+    kernel differentiates with respect to the prediction only)."""
+    if pred.dim() != 3 or pred.numel() == 0:
+        return False
+    return all(
+        t.device.type == "cpu" and t.dtype == torch.float32 and t.shape == pred.shape
+        for t in (pred, *others)
+    ) and not any(t.requires_grad for t in others)
+
+
+def uses_native(pred: Tensor, *others: Tensor) -> bool:
+    """Whether the photometric loss of ``pred`` against ``others`` (the target and its SSIM
+    statistics) runs natively: float32 CPU images of one shape, unless the environment forces
+    the torch implementation. With ``SPARSESPLAT_PHOTOMETRIC=native`` unsuited inputs raise."""
+    choice = backend()
+    if choice == "torch":
+        return False
+    suited = _suited(pred, others)
+    if choice == "native" and not suited:
+        described = ", ".join(f"{tuple(t.shape)} {t.dtype} on {t.device}" for t in (pred, *others))
+        raise ValueError(
+            f"${BACKEND_ENV}=native needs float32 CPU (C, H, W) images of one shape and a "
+            f"target without gradient; got {described}"
+        )
+    return suited
+
+
+class _Photometric(torch.autograd.Function):
+    @staticmethod
+    def forward(
+        ctx: Any,
+        pred: Tensor,
+        target: Tensor,
+        image: Tensor,
+        mu: Tensor,
+        var: Tensor,
+        weights: Tensor,
+        lambda_dssim: float,
+        c1: float,
+        c2: float,
+    ) -> Tensor:
+        need_grad = bool(ctx.needs_input_grad[0])
+        loss, grad = load_extension().forward(
+            pred, target, image, mu, var, weights, lambda_dssim, c1, c2, need_grad
+        )
+        if need_grad:
+            ctx.save_for_backward(grad)
+        return loss
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, upstream: Tensor) -> tuple[Tensor | None, ...]:
+        (grad,) = ctx.saved_tensors
+        return (grad * upstream, *([None] * 8))
+
+
+def photometric_native(
+    pred: Tensor,
+    target: Tensor,
+    image: Tensor,
+    mu: Tensor,
+    var: Tensor,
+    weights: Tensor,
+    lambda_dssim: float,
+    c1: float,
+    c2: float,
+) -> Tensor:
+    """``mean|pred - target| + lambda_dssim * (1 - SSIM(pred, image))`` for float32 CPU (C, H, W)
+    images, differentiable with respect to ``pred``. ``mu`` and ``var``: ``image``'s blurred
+    mean and variance under the separable window ``weights`` (odd length); ``c1``, ``c2``: SSIM's
+    stabilizing constants."""
+    return _Photometric.apply(
+        pred.contiguous(),
+        target.detach().contiguous(),
+        image.detach().contiguous(),
+        mu.detach().reshape(pred.shape).contiguous(),
+        var.detach().reshape(pred.shape).contiguous(),
+        weights.detach().to(torch.float32).contiguous(),
+        float(lambda_dssim),
+        float(c1),
+        float(c2),
+    )
