@@ -70,9 +70,10 @@ def check_device(device: str) -> str:
     return str(dev)
 
 
-def prepare_native(device: str, color: bool = True) -> None:
+def prepare_native(device: str, color: bool = True, training: bool = False) -> None:
     """Load (building on first use) the native CPU extensions before the work starts, saying
-    on stderr what is happening when it takes a while (the first build takes ~30 s)."""
+    on stderr what is happening when it takes a while (the first build takes ~30 s).
+    ``training`` adds the fused photometric loss, which only training uses."""
     if not device.startswith("cpu"):
         return
     from sparsesplat.engine.raster.build import load_extension, load_projection_extension
@@ -82,6 +83,10 @@ def prepare_native(device: str, color: bool = True) -> None:
         from sparsesplat.engine.color.build import load_extension as load_hash_grid
 
         loaders.append(load_hash_grid)
+    if training:
+        from sparsesplat.engine.photometric.build import load_extension as load_photometric
+
+        loaders.append(load_photometric)
     done = threading.Event()
     where = os.environ.get("TORCH_EXTENSIONS_DIR") or "~/.cache/torch_extensions"
 

@@ -318,7 +318,7 @@ def _run(args: argparse.Namespace) -> int:
             emit({"kind": "budget", "seconds": budget, "schedule_iterations": config.iterations})
             if talk:
                 print(f"time budget {budget:g} s: training until it is spent", file=sys.stderr)
-        prepare_native(device, color=config.color.model == "neural")
+        prepare_native(device, color=config.color.model == "neural", training=True)
 
     bar: ProgressLine | None = None
 
