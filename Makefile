@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-cameras
 
 venv: $(VENV)/.installed
 
@@ -62,6 +62,9 @@ bench-reference-depth: venv
 
 bench-per-view: venv
 	$(PY) -m sparsesplat.engine.bench.per_view $(BENCH_ARGS)
+
+bench-cameras: venv
+	$(PY) -m sparsesplat.engine.bench.cameras $(BENCH_ARGS)
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)

@@ -20,7 +20,7 @@ alpha (inward-looking cameras), ``default`` user uploads (LLFF recipe)."""
 ColorModelName = Literal["neural", "sh"]
 """Colour model: DNGaussian's neural colour field, or plain spherical harmonics."""
 
-InitName = Literal["random", "dense"]
+InitName = Literal["random", "dense", "sparse"]
 """Initial Gaussians: ``random`` points in a box around the cameras' view (the method's), or
 ``dense`` points back-projected from the confident pixels of a plane-sweep depth of the
 uploaded views themselves."""
@@ -82,7 +82,8 @@ class JobSpec(BaseModel):
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
     init: InitName | None = None
-    """Initial Gaussians (``random`` or ``dense``); None: the preset's."""
+    """Initial Gaussians (``random``, ``dense``, or ``sparse``: the points triangulated when
+    the cameras were estimated from the photos); None: the preset's."""
     dropout: bool | None = None
     """DropGaussian: drop a random share of Gaussians in each photometric pass, compensating
     the rest's opacity (a prior-free sparse-view regulariser); None: the preset's."""

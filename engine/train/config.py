@@ -26,7 +26,7 @@ ColorModelName = Literal["neural", "sh"]
 """The colour models: DNGaussian's neural field, or per-Gaussian SH (3DGS)."""
 RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
 """The rasterizer backends ``engine.raster.rasterize`` accepts."""
-InitName = Literal["random", "dense"]
+InitName = Literal["random", "dense", "sparse"]
 """Initial Gaussians: a random box, or back-projected confident metric depth."""
 AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
@@ -80,7 +80,9 @@ class TrainConfig:
     the depth is the run's prior when it is metric (plane sweep), else a plane-sweep prior
     computed for the init (cached under ``out_dir/priors``). SH colour takes the pixel colours
     as DC. Falls back to 'random' with a warning (``metrics['init']``) when no pixel is
-    confident."""
+    confident. 'sparse': the structure-from-motion points of a scene whose cameras were
+    estimated from the photos, with their colours, topped up to the random init's count by
+    jittered copies (``engine/sfm/points.py``); falls back to 'random' like 'dense'."""
     dense_init_points: int | None = None
     """Number of points drawn for ``init='dense'`` (all confident pixels when fewer); None:
     the random init's count (``init_points`` or the automatic count)."""

@@ -59,6 +59,7 @@ from sparsesplat.engine.losses import (
 )
 from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.sfm.points import sparse_initial_points
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.consistency import ConsistencySettings, WarpConsistency
@@ -293,6 +294,14 @@ class Trainer:
             n = cfg.init_points
         else:
             n = initial_point_count(cfg, lo, hi, [c.center.cpu() for c in self.cameras])
+        if cfg.init == "sparse":
+            try:
+                points, colours = sparse_initial_points(self.scene.sparse_points, n, g)
+                self.init_note = f"sparse: {len(points)} points"
+                return points, colours
+            except SceneError as exc:
+                self.init_note = f"random: sparse init failed ({exc})"
+                log.warning("init='sparse' fell back to a random box: %s", exc)
         dense = DenseInitSettings.from_config(cfg)
         if dense.enabled:
             try:
