@@ -26,11 +26,11 @@ def estimate_document(estimate: CameraEstimate, images: list[str] | None = None)
     return document
 
 
-def write_estimate(estimate: CameraEstimate, folder: Path, images: list[str] | None = None) -> Path:
-    """Write ``cameras.json`` and the sparse points into ``folder``; the cameras file's path.
-    The points go first, so a folder with a cameras file always has its points."""
-    write_sparse_points(folder, estimate.points, estimate.colours)
-    path = folder / CAMERAS_FILE
+def write_estimate(estimate: CameraEstimate, path: Path, images: list[str] | None = None) -> Path:
+    """Write the cameras file ``path`` (``cameras.json`` for a scene folder) and the sparse
+    points beside it; returns ``path``. The points go first, so a folder with a cameras file
+    always has its points."""
+    write_sparse_points(path.parent, estimate.points, estimate.colours)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(estimate_document(estimate, images), indent=1))
     tmp.replace(path)
