@@ -79,17 +79,22 @@ def estimate_cameras(
     *,
     threads: int = 1,
     seed: int = 0,
+    labels: list[str] | None = None,
     on_attempt: Callable[[str], None] | None = None,
 ) -> CameraEstimate:
     """Estimate one shared pinhole camera and a pose per photo in ``paths`` (all the same
     size), or raise :class:`CameraEstimationError` naming the photos at fault and what to do.
 
     ``intrinsics`` are held fixed when given; else an EXIF focal length (35 mm equivalent) or
-    1.2x the longer side starts bundle adjustment. The settings of :data:`ATTEMPTS` are tried
-    in order until a result passes every check of :mod:`.check`; ``on_attempt`` hears each
-    one's name before it runs."""
+    1.2x the longer side starts bundle adjustment. Messages name the photos by ``labels``
+    (e.g. the names they were uploaded under; default: their file names). The settings of
+    :data:`ATTEMPTS` are tried in order until a result passes every check of :mod:`.check`;
+    ``on_attempt`` hears each one's name before it runs."""
     started = time.perf_counter()
     names = [p.name for p in paths]
+    shown = labels if labels is not None else names
+    if len(shown) != len(paths):
+        raise ValueError(f"{len(shown)} labels for {len(paths)} photos")
     if len(paths) < MIN_PHOTOS:
         raise CameraEstimationError(
             f"need at least {MIN_PHOTOS} photos of the same scene from different places to "
@@ -97,7 +102,7 @@ def estimate_cameras(
         )
     if len(set(names)) != len(names):
         raise CameraEstimationError("two photos have the same file name: rename one")
-    width, height = _common_size(paths)
+    width, height = _common_size(paths, shown)
     prior, source = _prior(paths, width, height, intrinsics)
     rec: Reconstruction | None = None
     stats: MatchStats | None = None
@@ -112,10 +117,10 @@ def estimate_cameras(
             rec, stats = run_colmap(
                 image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
             )
-            problem = input_problem(names, stats)
+            problem = input_problem(shown, stats)
             if problem is not None:
                 break
-            problem = result_problem(names, stats, rec, attempt.min_inliers)
+            problem = result_problem(shown, stats, rec, attempt.min_inliers)
             log.info("camera estimation attempt", extra={"attempt": attempt.name,
                                                          "problem": problem})  # fmt: skip
             if problem is None:
@@ -157,7 +162,7 @@ def estimate_cameras(
     )
 
 
-def _common_size(paths: list[Path]) -> tuple[int, int]:
+def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:
     from PIL import Image, UnidentifiedImageError
 
     sizes = []
@@ -167,13 +172,13 @@ def _common_size(paths: list[Path]) -> tuple[int, int]:
                 sizes.append(image.size)
         except (OSError, UnidentifiedImageError) as exc:
             raise CameraEstimationError(
-                f"photo {i + 1} ({path.name}) is not a readable image ({exc})"
+                f"photo {i + 1} ({shown[i]}) is not a readable image ({exc})"
             ) from exc
     for i, size in enumerate(sizes):
         if size != sizes[0]:
             raise CameraEstimationError(
-                f"photo {i + 1} ({paths[i].name}) is {size[0]}x{size[1]} but photo 1 "
-                f"({paths[0].name}) is {sizes[0][0]}x{sizes[0][1]}: the photos must come from "
+                f"photo {i + 1} ({shown[i]}) is {size[0]}x{size[1]} but photo 1 "
+                f"({shown[0]}) is {sizes[0][0]}x{sizes[0][1]}: the photos must come from "
                 "one camera at one size"
             )
     return sizes[0]

@@ -208,7 +208,11 @@ def get_image(
     job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
 ) -> FileResponse:
     """The ``index``-th frame's image as uploaded (frames in ``cameras.json`` order)."""
-    frames = json.loads((service.storage.upload_dir(job.id) / "cameras.json").read_text())["frames"]
+    upload = service.storage.upload_dir(job.id)
+    if (upload / "cameras.json").is_file():
+        frames = json.loads((upload / "cameras.json").read_text())["frames"]
+    else:  # photos without cameras, not estimated yet (server/photo_upload.py)
+        frames = [{"image": i} for i in json.loads((upload / "photos.json").read_text())["images"]]
     if index >= len(frames):
         raise ServiceError(404, "image_not_found", f"job {job.id} has {len(frames)} images")
     path = service.storage.upload_dir(job.id) / frames[index]["image"]
