@@ -44,21 +44,23 @@ class Normalised:
 
 
 def normalise(rec: Reconstruction) -> Normalised:
-    """``rec`` moved to the stored frame: x' = s R0 (x - m)."""
+    """``rec`` moved to the stored frame: x' = s (R0 x - m), R0 the first photo's rotation,
+    m the per-axis median of the rotated points."""
     lo_q, hi_q = ROBUST_PERCENT, 100.0 - ROBUST_PERCENT
-    centre = np.median(rec.points, axis=0)
     first = min(rec.world_to_camera)
     r0 = rec.world_to_camera[first][:3, :3]
-    rotated = (rec.points - centre) @ r0.T
+    rotated = rec.points @ r0.T
+    centre = np.median(rotated, axis=0)
+    rotated -= centre
     half = (np.percentile(rotated, hi_q, axis=0) - np.percentile(rotated, lo_q, axis=0)) / 2
     scale = 1.0 / float(max(half.max(), 1e-12))
     points = rotated * scale
     poses = {}
     for i, w2c in rec.world_to_camera.items():
-        r, t = w2c[:3, :3], w2c[:3, 3]
+        r = w2c[:3, :3] @ r0.T
         out = np.eye(4)
-        out[:3, :3] = r @ r0.T
-        out[:3, 3] = scale * (r @ centre + t)
+        out[:3, :3] = r
+        out[:3, 3] = scale * (r @ centre + w2c[:3, 3])
         poses[i] = out
     depths = np.concatenate([points @ p[:3, :3].T[:, 2] + p[2, 3] for p in poses.values()])
     depths = depths[depths > 0]
