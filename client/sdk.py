@@ -30,7 +30,7 @@ from urllib.parse import urlencode
 import httpx
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.cameras import Intrinsics, PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, ModelInfo, Record
 from sparsesplat.api.renders import RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
@@ -48,6 +48,7 @@ from sparsesplat.client.errors import (
     Timeout,
     error_for_status,
 )
+from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.progress import ProgressBar
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
 
@@ -323,21 +324,28 @@ class _Base:
 
     def _c_submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None,
         idempotency_key: IdempotencyKey,
     ) -> _Call[Job]:
         upload.validate()
-        files: list[tuple[str, tuple[str, bytes, str]]] = [
-            ("cameras", ("cameras.json", json.dumps(upload.cameras).encode(), "application/json"))
-        ]
+        files: list[tuple[str, tuple[str, bytes, str]]] = []
+        form = {"spec": _spec_json(spec, upload.preset)}
+        if isinstance(upload, Photos):  # no cameras: the service estimates them
+            if upload.intrinsics is not None:
+                form["intrinsics"] = upload.intrinsics.model_dump_json()
+        else:
+            document = json.dumps(upload.cameras).encode()
+            files.append(("cameras", ("cameras.json", document, "application/json")))
         for name, data in upload.images.items():
             kind = media.sniff(data) or "png"
             files.append(("images", (name, data, media.UPLOAD_FORMATS[kind])))
-        for name, data in upload.depths.items():
-            files.append(("depths", (name, data, "application/octet-stream")))
-        for name, data in upload.masks.items():
-            files.append(("masks", (name, data, media.UPLOAD_FORMATS[media.sniff(data) or "png"])))
+        if isinstance(upload, Upload):
+            for name, data in upload.depths.items():
+                files.append(("depths", (name, data, "application/octet-stream")))
+            for name, data in upload.masks.items():
+                kind = media.sniff(data) or "png"
+                files.append(("masks", (name, data, media.UPLOAD_FORMATS[kind])))
         key = uuid.uuid4().hex if idempotency_key == "auto" else idempotency_key
         return _Call(
             "POST",
@@ -346,7 +354,7 @@ class _Base:
             self.timeouts.upload,
             idempotent=key is not None,
             files=files,
-            data={"spec": _spec_json(spec, upload.preset)},
+            data=form,
             headers={"Idempotency-Key": key} if key else {},
         )
 
@@ -484,19 +492,20 @@ class Client(_Base):
 
     def submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None = None,
         *,
         idempotency_key: IdempotencyKey = "auto",
     ) -> JobHandle:
-        """Submit a prepared :class:`~sparsesplat.client.scenes.Upload` as a training job.
+        """Submit a prepared :class:`~sparsesplat.client.scenes.Upload` (or
+        :class:`~sparsesplat.client.photos.Photos`, photos without cameras) as a training job.
 
         ``spec`` is a :class:`~sparsesplat.api.jobs.JobSpec` or its dict (iterations or
         time_budget_s, preset, depth_prior, seed…); the upload's preset fills in a missing
         one. An ``Idempotency-Key`` is sent (a fresh one unless given), so a retried
         submission returns the first job instead of creating a second."""
         job = self._send(self._c_submit(upload, spec, idempotency_key))
-        return JobHandle(self, job, upload)
+        return JobHandle(self, job, upload if isinstance(upload, Upload) else None)
 
     def submit_folder(
         self,
@@ -511,11 +520,28 @@ class Client(_Base):
     ) -> JobHandle:
         """Submit a dataset folder in any format the engine reads (LLFF, Blender, DTU,
         instant-ngp, an upload folder) with the paper's training views; see
-        :func:`~sparsesplat.client.scenes.read_scene` for the arguments."""
+        :func:`~sparsesplat.client.scenes.read_scene` for the arguments. A folder of photos
+        alone (no cameras file) goes up as :meth:`submit_photos`."""
+        if format is None and is_photo_folder(Path(path)):
+            return self.submit_photos([path], spec, idempotency_key=idempotency_key)
         upload = read_scene(
             path, views=views, test_views=test_views, downscale=downscale, format=format
         )
         return self.submit(upload, spec, idempotency_key=idempotency_key)
+
+    def submit_photos(
+        self,
+        photos: Sequence[str | Path],
+        spec: JobSpec | dict[str, Any] | None = None,
+        *,
+        intrinsics: Intrinsics | None = None,
+        idempotency_key: IdempotencyKey = "auto",
+    ) -> JobHandle:
+        """Submit photos without cameras (a folder of them, or files): the job estimates their
+        cameras first (phase ``estimating cameras``; ``progress.cameras`` says how it went),
+        then trains; ``intrinsics`` (pixels, shared) are held fixed when given. Photos that
+        cannot be placed fail the job with a message naming them."""
+        return self.submit(read_photos(photos, intrinsics), spec, idempotency_key=idempotency_key)
 
     def submit_images(
         self,
@@ -923,14 +949,14 @@ class AsyncClient(_Base):
 
     async def submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None = None,
         *,
         idempotency_key: IdempotencyKey = "auto",
     ) -> AsyncJobHandle:
         """See :meth:`Client.submit`."""
         job = await self._send(self._c_submit(upload, spec, idempotency_key))
-        return AsyncJobHandle(self, job, upload)
+        return AsyncJobHandle(self, job, upload if isinstance(upload, Upload) else None)
 
     async def submit_folder(
         self,
@@ -944,10 +970,24 @@ class AsyncClient(_Base):
         idempotency_key: IdempotencyKey = "auto",
     ) -> AsyncJobHandle:
         """See :meth:`Client.submit_folder` (the folder is read in a thread)."""
+        if format is None and is_photo_folder(Path(path)):
+            return await self.submit_photos([path], spec, idempotency_key=idempotency_key)
         upload = await asyncio.to_thread(
             read_scene, path, views=views, test_views=test_views, downscale=downscale,
             format=format,
         )  # fmt: skip
+        return await self.submit(upload, spec, idempotency_key=idempotency_key)
+
+    async def submit_photos(
+        self,
+        photos: Sequence[str | Path],
+        spec: JobSpec | dict[str, Any] | None = None,
+        *,
+        intrinsics: Intrinsics | None = None,
+        idempotency_key: IdempotencyKey = "auto",
+    ) -> AsyncJobHandle:
+        """See :meth:`Client.submit_photos` (the photos are read in a thread)."""
+        upload = await asyncio.to_thread(read_photos, photos, intrinsics)
         return await self.submit(upload, spec, idempotency_key=idempotency_key)
 
     async def submit_images(

@@ -145,3 +145,39 @@ def test_bad_photo_sets_are_refused_or_fail_with_the_reason(
             first.status_code == 200
             and first.content == sorted(photos, key=lambda p: p.name)[0].read_bytes()
         )
+
+
+def test_cli_and_sdk_submit_bare_photos(live: LiveService, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from sparsesplat.api.cameras import Intrinsics
+    from sparsesplat.client import Client
+
+    paths = write_photos(tmp_path / "photos", camera_poses(3))
+    live.start_api(with_workers=False)  # the jobs stay queued: only the uploads are checked
+    env = {**live.env, "SPARSESPLAT_URL": live.url}
+    done = subprocess.run(
+        [sys.executable, "-m", "sparsesplat", "submit", str(tmp_path / "photos"), "--json"],
+        capture_output=True, text=True, env=env, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    job = json.loads(done.stdout)
+    assert job["n_train_views"] == 3 and job["n_test_views"] == 0
+    stored = live.data_dir / "jobs" / job["id"] / "upload"
+    manifest = json.loads((stored / "photos.json").read_text())
+    assert manifest["names"] == [p.name for p in paths] and manifest["intrinsics"] is None
+    assert (stored / manifest["images"][2]).read_bytes() == paths[2].read_bytes()
+    served = httpx.get(f"{live.url}/v1/jobs/{job['id']}/images/1", timeout=10)
+    assert served.status_code == 200 and served.content == paths[1].read_bytes()
+
+    given = Intrinsics(fx=288.0, fy=288.0, cx=160.0, cy=120.0)
+    with Client(live.url) as client:
+        handle = client.submit_photos(paths, {"iterations": 10}, intrinsics=given)
+    stored = live.data_dir / "jobs" / handle.id / "upload"
+    assert json.loads((stored / "photos.json").read_text())["intrinsics"] == given.model_dump()
+    one = subprocess.run(
+        [sys.executable, "-m", "sparsesplat", "submit", str(paths[0]), str(paths[0])],
+        capture_output=True, text=True, env=env, timeout=120,
+    )  # fmt: skip
+    assert one.returncode != 0 and "two photos named" in one.stderr
