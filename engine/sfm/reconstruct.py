@@ -96,6 +96,7 @@ def run_colmap(
     extraction.num_threads = threads
     extraction.sift.peak_threshold = attempt.peak_threshold
     extraction.sift.domain_size_pooling = attempt.domain_size_pooling
+    extraction.sift.estimate_affine_shape = attempt.affine_shape
     cpu = pycolmap.Device.cpu
     pycolmap.extract_features(
         database, image_dir, names, pycolmap.CameraMode.SINGLE, reader, extraction, cpu
