@@ -81,10 +81,17 @@ def result_problem(
     if missing:
         i = missing[0]
         partner = max((j for j in range(n) if j != i), key=lambda j: stats.inliers(i, j))
+        others = (
+            f" ({len(missing) - 1} other photo(s) could not be placed either: "
+            f"{', '.join(str(k + 1) for k in missing[1:])})"
+            if len(missing) > 1
+            else ""
+        )
         return (
             f"{photo(names, i)} could not be placed: it shares too few features with the "
             f"others (at most {stats.inliers(i, partner)} matches, with "
-            f"{photo(names, partner)}): take the photos closer together, with more overlap"
+            f"{photo(names, partner)}){others}: take the photos closer together, with more "
+            "overlap"
         )
     if len(rec.points) < MIN_POINTS:
         return (
