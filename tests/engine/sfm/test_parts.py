@@ -87,3 +87,27 @@ def test_exif_focal_from_35mm_equivalent(tmp_path) -> None:
     assert exif_focal_px(tmp_path / "a.jpg", 400, 300) == pytest.approx(27 / 36 * 400)
     image.save(tmp_path / "b.png")
     assert exif_focal_px(tmp_path / "b.png", 400, 300) is None
+
+
+def test_trainer_starts_from_the_sparse_points_or_says_it_could_not() -> None:
+    import dataclasses
+
+    from sparsesplat.engine.synthetic import make_scene
+    from sparsesplat.engine.train import Trainer, preset
+
+    scene, _ = make_scene(seed=0)
+    points = torch.tensor([[0.1, 0.2, 0.3], [-0.4, 0.0, 0.5], [0.3, -0.2, -0.1]])
+    colours = torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.1, 0.1, 0.9]])
+    config = preset("default", iterations=1, depth_prior="none", color_model="sh",
+                    init="sparse", init_points=50)  # fmt: skip
+    with_points = Trainer(dataclasses.replace(scene, sparse_points=(points, colours)), config)
+    assert with_points.init_note == "sparse: 50 points"
+    means = with_points.gaussians.params["means"].detach()
+    assert torch.equal(means[:3], points)
+    # SH DC holds the points' colours: C0 * dc + 0.5 recovers them.
+    from sparsesplat.engine.color.sh import C0
+
+    dc = with_points.gaussians.params["sh_dc"].detach()[:3, 0]
+    assert torch.allclose(C0 * dc + 0.5, colours, atol=1e-6)
+    without = Trainer(scene, config)
+    assert without.init_note is not None and without.init_note.startswith("random: sparse init")
