@@ -31,12 +31,18 @@ UPLOAD_SCHEMA = {
             "multipart/form-data": {
                 "schema": {
                     "type": "object",
-                    "required": ["cameras", "images"],
+                    "required": ["images"],
                     "properties": {
                         "cameras": {
                             "type": "string",
                             "format": "binary",
-                            "description": "cameras.json (see api/cameras.py)",
+                            "description": "cameras.json (see api/cameras.py); without it the "
+                            "images are photos whose cameras the job estimates first",
+                        },
+                        "intrinsics": {
+                            "type": "string",
+                            "description": "photos without cameras: shared pinhole intrinsics "
+                            "as JSON {fx, fy, cx, cy} in pixels, held fixed",
                         },
                         "images": {
                             "type": "array",
@@ -79,7 +85,8 @@ async def submit_job(
     idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
 ) -> Job:
     """Multipart upload: ``cameras`` (cameras.json), ``images`` (one per frame), optional
-    ``depths``, ``masks`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried
+    ``depths``, ``masks`` and ``spec`` (JSON JobSpec); or, without ``cameras``, photos whose
+    cameras the job estimates first (optional ``intrinsics``). With an ``Idempotency-Key`` a retried
     submission returns the first job (200) instead of creating a second one."""
     settings = service.settings
     if idempotency_key is not None:
