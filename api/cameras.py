@@ -481,6 +481,11 @@ def describe_validation_error(exc: ValidationError, data: Any = None) -> str:
     return "\n".join(lines)
 
 
+MIN_PHOTOS = 2
+"""Fewest photos whose cameras can be estimated (three or more from different places is
+better)."""
+
+
 class Intrinsics(StrictModel):
     """Pinhole intrinsics shared by every photo of an upload without poses (pixels, pixel
     centres at +0.5): the cameras are estimated from the photos with these held fixed."""

@@ -14,13 +14,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sparsesplat.api.cameras import Intrinsics
+from sparsesplat.api.cameras import MIN_PHOTOS, Intrinsics
 from sparsesplat.client import media
 from sparsesplat.client.errors import InvalidInput
 from sparsesplat.client.scenes import IMAGE_SUFFIXES, MARKERS
-
-MIN_PHOTOS = 2
-"""Fewest photos the service can estimate cameras for."""
 
 
 @dataclass

@@ -20,16 +20,13 @@ from pathlib import Path
 from pydantic import ValidationError
 from starlette.datastructures import FormData
 
-from sparsesplat.api.cameras import Intrinsics
+from sparsesplat.api.cameras import MIN_PHOTOS, Intrinsics
 from sparsesplat.api.jobs import JobSpec
 from sparsesplat.api.settings import Settings
+from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.server.errors import ServiceError, invalid
 from sparsesplat.server.uploads import Upload, _files, _image_info, _text, pydantic_message
 
-PHOTOS_FILE = "photos.json"
-"""The photos-only upload's manifest (stored images, uploaded names, intrinsics)."""
-MIN_PHOTOS = 2
-"""Fewest photos cameras can be estimated for."""
 BLANK_STDDEV = 1.0
 """A photo whose grey levels vary less than this (standard deviation, 0-255) is blank."""
 

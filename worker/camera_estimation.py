@@ -17,13 +17,12 @@ from pathlib import Path
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.api.jobs import CameraEstimation
 from sparsesplat.api.settings import Settings
+from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import JobStore
 from sparsesplat.worker.heartbeat import JobHeartbeat
 
 log = logging.getLogger("sparsesplat.worker")
 
-PHOTOS_FILE = "photos.json"
-"""The photos-only manifest the service writes (``server/photo_upload.PHOTOS_FILE``)."""
 PHASE = "estimating cameras"
 """The job's phase while its cameras are estimated."""
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from sparsesplat.api.cameras import (
+    MIN_PHOTOS,
     AxisConvention,
     CameraFrame,
     CamerasFile,
@@ -34,8 +35,6 @@ log = logging.getLogger(__name__)
 DEFAULT_FOCAL_FACTOR = 1.2
 """Focal length guess without EXIF or user intrinsics: this times the longer image side
 (COLMAP's own default, a ~45° field of view); bundle adjustment refines it."""
-MIN_PHOTOS = 2
-"""Fewest photos cameras can be estimated for."""
 
 
 @dataclass

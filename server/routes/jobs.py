@@ -13,6 +13,7 @@ from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
+from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import new_job_id
 from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
@@ -219,7 +220,8 @@ def get_image(
     if (upload / "cameras.json").is_file():
         frames = json.loads((upload / "cameras.json").read_text())["frames"]
     else:  # photos without cameras, not estimated yet (server/photo_upload.py)
-        frames = [{"image": i} for i in json.loads((upload / "photos.json").read_text())["images"]]
+        manifest = json.loads((upload / PHOTOS_FILE).read_text())
+        frames = [{"image": image} for image in manifest["images"]]
     if index >= len(frames):
         raise ServiceError(404, "image_not_found", f"job {job.id} has {len(frames)} images")
     path = service.storage.upload_dir(job.id) / frames[index]["image"]
