@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import tempfile
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from sparsesplat.engine.sfm.check import (
 from sparsesplat.engine.sfm.errors import CameraEstimationError
 from sparsesplat.engine.sfm.exif import exif_focal_px
 from sparsesplat.engine.sfm.frame import normalise
-from sparsesplat.engine.sfm.reconstruct import CameraPrior, MatchStats, Reconstruction, run_colmap
+from sparsesplat.engine.sfm.reconstruct import CameraPrior, Reconstruction, run_colmap
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +78,6 @@ def estimate_cameras(
     threads: int = 1,
     seed: int = 0,
     labels: list[str] | None = None,
-    on_attempt: Callable[[str], None] | None = None,
 ) -> CameraEstimate:
     """Estimate one shared pinhole camera and a pose per photo in ``paths`` (all the same
     size), or raise :class:`CameraEstimationError` naming the photos at fault and what to do.
@@ -87,8 +85,7 @@ def estimate_cameras(
     ``intrinsics`` are held fixed when given; else an EXIF focal length (35 mm equivalent) or
     1.2x the longer side starts bundle adjustment. Messages name the photos by ``labels``
     (e.g. the names they were uploaded under; default: their file names). The settings of
-    :data:`ATTEMPTS` are tried in order until a result passes every check of :mod:`.check`;
-    ``on_attempt`` hears each one's name before it runs."""
+    :data:`ATTEMPTS` are tried in order until a result passes every check of :mod:`.check`."""
     started = time.perf_counter()
     names = [p.name for p in paths]
     shown = labels if labels is not None else names
@@ -104,15 +101,12 @@ def estimate_cameras(
     width, height = _common_size(paths, shown)
     prior, source = _prior(paths, width, height, intrinsics)
     rec: Reconstruction | None = None
-    stats: MatchStats | None = None
     problem = None
     with tempfile.TemporaryDirectory(prefix="sparsesplat-sfm-") as tmp:
         image_dir = paths[0].parent
         if any(p.parent != image_dir for p in paths):
             raise CameraEstimationError("the photos must be in one folder")
         for k, attempt in enumerate(ATTEMPTS):
-            if on_attempt is not None:
-                on_attempt(attempt.name)
             rec, stats = run_colmap(
                 image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
             )
@@ -131,7 +125,7 @@ def estimate_cameras(
     frames = [
         CameraFrame(
             image=name,
-            matrix=np.linalg.inv(frame.world_to_camera[i]).tolist(),
+            matrix=_camera_to_world(frame.world_to_camera[i]).tolist(),
             fx=fx,
             fy=fy,
             cx=cx,
@@ -159,6 +153,14 @@ def estimate_cameras(
         triangulation_angle_deg=median_triangulation_angle_deg(rec),
         focal_source=source,
     )
+
+
+def _camera_to_world(w2c: np.ndarray) -> np.ndarray:
+    """The rigid inverse [R^T, -R^T t] (exactly rigid, unlike a general inverse)."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = w2c[:3, :3].T
+    c2w[:3, 3] = -w2c[:3, :3].T @ w2c[:3, 3]
+    return c2w
 
 
 def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:
