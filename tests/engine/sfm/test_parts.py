@@ -111,3 +111,14 @@ def test_trainer_starts_from_the_sparse_points_or_says_it_could_not() -> None:
     assert torch.allclose(C0 * dc + 0.5, colours, atol=1e-6)
     without = Trainer(scene, config)
     assert without.init_note is not None and without.init_note.startswith("random: sparse init")
+
+
+def test_without_pycolmap_the_error_says_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from sparsesplat.engine.sfm.colmap import require_pycolmap
+    from sparsesplat.engine.sfm.errors import MissingSfmDependency
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # as if not installed
+    with pytest.raises(MissingSfmDependency, match=r"pip install 'sparsesplat\[sfm\]'"):
+        require_pycolmap()
