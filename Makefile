@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet bench-cameras
 
 venv: $(VENV)/.installed
 
@@ -65,6 +65,9 @@ bench-per-view: venv
 
 bench-render-sheet: venv
 	$(PY) -m sparsesplat.engine.bench.render_sheet $(BENCH_ARGS)
+
+bench-cameras: venv
+	$(PY) -m sparsesplat.engine.bench.cameras $(BENCH_ARGS)
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)

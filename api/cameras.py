@@ -479,3 +479,29 @@ def describe_validation_error(exc: ValidationError, data: Any = None) -> str:
         where = _where(loc, data)
         lines.append(f"{where}: {msg}" if where else msg)
     return "\n".join(lines)
+
+
+MIN_PHOTOS = 2
+"""Fewest photos whose cameras can be estimated (three or more from different places is
+better)."""
+
+
+class Intrinsics(StrictModel):
+    """Pinhole intrinsics shared by every photo of an upload without poses (pixels, pixel
+    centres at +0.5): the cameras are estimated from the photos with these held fixed."""
+
+    REQUIRED_HINTS: ClassVar[dict[str, str]] = {
+        "fx": "focal length along x in pixels",
+        "fy": "focal length along y in pixels",
+        "cx": "principal point x in pixels (the image centre is width / 2)",
+        "cy": "principal point y in pixels (the image centre is height / 2)",
+    }
+
+    fx: float = Field(gt=0, allow_inf_nan=False)
+    """Focal length along x in pixels."""
+    fy: float = Field(gt=0, allow_inf_nan=False)
+    """Focal length along y in pixels."""
+    cx: float = Field(allow_inf_nan=False)
+    """Principal point x in pixels."""
+    cy: float = Field(allow_inf_nan=False)
+    """Principal point y in pixels."""

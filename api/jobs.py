@@ -72,7 +72,8 @@ class JobSpec(BaseModel):
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
     init: InitName | None = None
-    """Initial Gaussians (``random`` or ``dense``); None: the preset's."""
+    """Initial Gaussians (``random``, ``dense``, or ``sparse``: the points triangulated when
+    the cameras were estimated from the photos); None: the preset's."""
     dropout: bool | None = None
     """DropGaussian: drop a random share of Gaussians in each photometric pass, compensating
     the rest's opacity (a prior-free sparse-view regulariser); None: the preset's."""
@@ -144,6 +145,25 @@ class Record(BaseModel):
     """True for the record taken at the end (all held-out views)."""
 
 
+class CameraEstimation(BaseModel):
+    """How the cameras of a photos-only upload were estimated (structure from motion)."""
+
+    views: int
+    """Photos registered (all of them: a job with an unplaceable photo fails)."""
+    points: int
+    """Sparse points triangulated (``init='sparse'`` starts from them)."""
+    reprojection_error_px: float
+    """Mean reprojection error of the points, pixels."""
+    triangulation_angle_deg: float
+    """Median triangulation angle of the points, degrees (the parallax between the photos)."""
+    seconds: float
+    """Wall time of the estimation."""
+    attempt: str
+    """The settings that succeeded (``relaxed`` first, then ``more features``)."""
+    focal: str
+    """Where the focal length started: ``given`` (held fixed), ``exif`` or ``guess``."""
+
+
 class Progress(BaseModel):
     """Where a running job is."""
 
@@ -163,6 +183,8 @@ class Progress(BaseModel):
     """The recipe in use (chosen from the scene when the spec named none)."""
     preset_reason: str | None = None
     """Why that recipe, when it was chosen from the scene."""
+    cameras: CameraEstimation | None = None
+    """For photos uploaded without cameras: how they were estimated, once done."""
 
 
 class Job(BaseModel):
@@ -240,7 +262,8 @@ class ModelInfo(BaseModel):
     exports: list[str]
     """Available export formats (``ply``, ``splat``, ``checkpoint``)."""
     cameras: list[dict[str, Any]]
-    """The uploaded cameras (as in ``cameras.json``, with their split); the i-th one's image
-    is ``GET /v1/jobs/{id}/images/{i}``."""
+    """The uploaded cameras (as in ``cameras.json``, with their split), or those estimated
+    from photos uploaded without them (OpenCV camera-to-world, the frame the model was
+    trained in); the i-th one's image is ``GET /v1/jobs/{id}/images/{i}``."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) the model was trained and renders with."""

@@ -1,6 +1,8 @@
 """Where a job's files live: one storage interface over a directory tree.
 
     <root>/jobs/<job_id>/upload/   cameras.json (our names), images/, depth/   (written once)
+                                   photos without cameras: photos.json + images/ first, then
+                                   cameras.json + sparse_points.npz once estimated
     <root>/jobs/<job_id>/run/      checkpoint.pt, model.ply, model.splat, metrics*.{json,csv,png}
     <root>/staging/                uploads being received (moved into place in one rename)
 
@@ -19,6 +21,10 @@ from pathlib import Path
 from sparsesplat.api.names import ARTIFACT_FILES
 
 _JOB_ID = re.compile(r"^job_[0-9a-f]{20}$")
+
+PHOTOS_FILE = "photos.json"
+"""The manifest of an upload of photos without cameras (stored images, the names they were
+uploaded under, optional shared intrinsics); the worker estimates cameras.json from it."""
 
 
 class StorageError(ValueError):

@@ -58,6 +58,11 @@ COMMANDS: dict[str, Command] = {
         "train a scene locally (preset chosen from the scene; --help lists presets and priors)",
         "engine",
     ),
+    "cameras": Command(
+        "sparsesplat.engine.commands.cameras",
+        "estimate the cameras of photos without poses (writes cameras.json; sfm extra)",
+        "sfm",
+    ),
     "render": Command(
         "sparsesplat.client.commands.render",
         "render a model on the service, or a local checkpoint (engine extra); camera JSON "
@@ -83,7 +88,7 @@ _EXTRA_MODULES = {
 }
 
 
-LOCAL_COMMANDS = frozenset({"scene", "train", "render", "fetch-weights", "health"})
+LOCAL_COMMANDS = frozenset({"scene", "train", "cameras", "render", "fetch-weights", "health"})
 """Commands that run in the foreground and log through :func:`configure_cli_logging` (the
 service commands configure logging from their settings)."""
 

@@ -53,6 +53,10 @@ class Scene:
     """Indices of the training views in the source's sorted image list."""
     test_indices: list[int] = field(default_factory=list)
     """Indices of the held-out views in the source's sorted image list."""
+    sparse_points: tuple[Tensor, Tensor] | None = None
+    """(N, 3) points and (N, 3) RGB colours in [0, 1] from structure from motion, where the
+    cameras were estimated from the photos (``engine/sfm``); the trainer's ``init='sparse'``
+    starts from them."""
     render_path: list[Camera] = field(default_factory=list)
     """The format's own novel-view camera path (LLFF: the reference's 180-frame spiral through
     every image's pose, ``engine/camera_path.py``); empty where the format defines none."""

@@ -11,6 +11,9 @@ The multipart form of ``POST /v1/jobs`` carries:
   the size of their image);
 - ``spec``: optional JSON :class:`~sparsesplat.api.jobs.JobSpec`.
 
+Without ``cameras`` the upload is photos only (``server/photo_upload.py``): the worker
+estimates the cameras first.
+
 Everything is checked before anything is kept: formats from the file headers, image size from
 the header before decoding (a decompression bomb is refused without being decoded), then a
 full decode (truncated or corrupt files are refused). Accepted files are written into a staging
@@ -38,7 +41,7 @@ from sparsesplat.server.errors import ServiceError, invalid
 
 IMAGE_FORMATS = {"PNG": "png", "JPEG": "jpg", "WEBP": "webp"}
 """Accepted image formats (as Pillow names them) and the extension they are stored with."""
-_FORM_FIELDS = {"cameras", "images", "depths", "masks", "spec"}
+_FORM_FIELDS = {"cameras", "images", "depths", "masks", "spec", "intrinsics"}
 
 
 @dataclass
@@ -219,6 +222,12 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
             f"expected {', '.join(sorted(_FORM_FIELDS))}",
         )
     spec = parse_spec(form)
+    if form.get("cameras") is None and form.getlist("images"):
+        from sparsesplat.server.photo_upload import validate_photos  # photos without poses
+
+        return validate_photos(form, settings, staging, spec)
+    if form.get("intrinsics") is not None:
+        raise invalid("invalid_upload", "'intrinsics' is for photos without a cameras.json")
     cameras = parse_cameras(form)
     images = _files(form, "images")
     depths = _files(form, "depths")

@@ -14,7 +14,7 @@ import threading
 import time
 from typing import Any
 
-from sparsesplat.api.jobs import JobState, Progress, Record
+from sparsesplat.api.jobs import CameraEstimation, JobState, Progress, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.store.jobs import JobStore
 
@@ -45,6 +45,7 @@ class JobHeartbeat:
         self._phase = "preparing"
         self._record: Record | None = None
         self._preset: tuple[str, str | None] | None = None
+        self._cameras: CameraEstimation | None = None
         self._last_iteration = -1
         self._cancel_seen_at: float | None = None
         self._stop = threading.Event()
@@ -86,6 +87,10 @@ class JobHeartbeat:
         """The recipe in use and, when chosen from the scene, why."""
         self._preset = (name, reason)
 
+    def set_cameras(self, cameras: CameraEstimation) -> None:
+        """How the cameras were estimated (photos-only uploads)."""
+        self._cameras = cameras
+
     def set_record(self, record: Record) -> None:
         """The newest held-out record."""
         self._record = record
@@ -109,6 +114,7 @@ class JobHeartbeat:
             last_record=self._record,
             preset=self._preset[0] if self._preset else None,
             preset_reason=self._preset[1] if self._preset else None,
+            cameras=self._cameras,
         )
 
     def _loop(self) -> None:

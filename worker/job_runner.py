@@ -16,6 +16,7 @@ from sparsesplat.api.jobs import JobSpec, JobState, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.jobs import Claim, JobStore
+from sparsesplat.worker.camera_estimation import estimate_upload_cameras
 from sparsesplat.worker.heartbeat import JobHeartbeat
 
 log = logging.getLogger("sparsesplat.worker")
@@ -116,6 +117,7 @@ def _train(
 
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
     beat.set_phase("preparing")
+    estimate_upload_cameras(storage.upload_dir(claim.job_id), claim.job_id, store, beat, settings)
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
 
     def planned(plan: RunPlan) -> None:

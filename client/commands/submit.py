@@ -2,7 +2,9 @@
 
 A folder is read in any format the engine reads (LLFF, Blender, DTU, instant-ngp, an upload
 folder with cameras.json) with the paper's training views; files are images listed by a
-``--cameras`` cameras.json (frames matched by file name)."""
+``--cameras`` cameras.json (frames matched by file name). A folder of photos alone, or files
+without ``--cameras``, go up without cameras: the service estimates them first
+(``--intrinsics`` holds shared ones fixed)."""
 
 from __future__ import annotations
 
@@ -13,16 +15,29 @@ import sys
 from pathlib import Path
 from typing import Any, get_args
 
+from pydantic import ValidationError
+
+from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.api.jobs import PresetName
 from sparsesplat.client.commands.common import add_connection, client, dump, guarded, json_argument
 from sparsesplat.client.errors import InvalidInput, JobFailed
+from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import Upload, read_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Scene, split, spec and waiting options."""
     parser.add_argument("paths", nargs="+", metavar="FOLDER|FILES", help="scene folder or images")
-    parser.add_argument("--cameras", help="cameras.json for FILES (frames matched by file name)")
+    parser.add_argument(
+        "--cameras",
+        help="cameras.json for FILES (frames matched by file name); without it the service "
+        "estimates the cameras of the photos",
+    )
+    parser.add_argument(
+        "--intrinsics",
+        metavar="FX,FY,CX,CY",
+        help="photos without cameras: shared pinhole intrinsics in pixels, held fixed",
+    )
     scene = parser.add_argument_group("scene")
     scene.add_argument("--views", type=int, help="training views (default: the paper's)")
     scene.add_argument(
@@ -69,11 +84,25 @@ def _test_views(value: str) -> int | str:
         raise InvalidInput(f"--test-views: 'all' or a number, got {value!r}") from None
 
 
-def _upload(args: argparse.Namespace) -> Upload:
+def _intrinsics(text: str | None) -> Intrinsics | None:
+    if text is None:
+        return None
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+        return Intrinsics(fx=fx, fy=fy, cx=cx, cy=cy)
+    except (ValueError, ValidationError) as exc:
+        raise InvalidInput(f"--intrinsics {text!r}: four numbers FX,FY,CX,CY ({exc})") from exc
+
+
+def _upload(args: argparse.Namespace) -> Upload | Photos:
     paths = [Path(p) for p in args.paths]
     missing = [str(p) for p in paths if not p.exists()]
     if missing:
         raise InvalidInput(f"{', '.join(missing)}: not found")
+    if args.cameras is None and (len(paths) > 1 or is_photo_folder(paths[0])):
+        return read_photos(paths, _intrinsics(args.intrinsics))
+    if args.intrinsics is not None:
+        raise InvalidInput("--intrinsics is for photos without cameras (no --cameras)")
     if len(paths) == 1 and paths[0].is_dir():
         test_views = _test_views(args.test_views)
         return read_scene(
@@ -84,7 +113,7 @@ def _upload(args: argparse.Namespace) -> Upload:
             format=args.format,
         )
     if not args.cameras:
-        raise InvalidInput("FILES need --cameras cameras.json (or give one scene folder)")
+        raise InvalidInput(f"{paths[0]}: give a scene folder, photos, or --cameras cameras.json")
     folder_like = {posixpath.basename(p.name): p for p in paths}
     try:
         document = json.loads(Path(args.cameras).read_text())

@@ -29,6 +29,7 @@ from sparsesplat.client.errors import (
     Timeout,
     error_for_status,
 )
+from sparsesplat.client.photos import Photos
 from sparsesplat.client.scenes import Upload
 from sparsesplat.client.sdk._config import (
     API_KEY_ENV,
@@ -211,21 +212,28 @@ class _Base:
 
     def _c_submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None,
         idempotency_key: IdempotencyKey,
     ) -> _Call[Job]:
         upload.validate()
-        files: list[tuple[str, tuple[str, bytes, str]]] = [
-            ("cameras", ("cameras.json", json.dumps(upload.cameras).encode(), "application/json"))
-        ]
+        files: list[tuple[str, tuple[str, bytes, str]]] = []
+        form = {"spec": _spec_json(spec, upload.preset)}
+        if isinstance(upload, Photos):  # no cameras: the service estimates them
+            if upload.intrinsics is not None:
+                form["intrinsics"] = upload.intrinsics.model_dump_json()
+        else:
+            document = json.dumps(upload.cameras).encode()
+            files.append(("cameras", ("cameras.json", document, "application/json")))
         for name, data in upload.images.items():
             kind = media.sniff(data) or "png"
             files.append(("images", (name, data, media.UPLOAD_FORMATS[kind])))
-        for name, data in upload.depths.items():
-            files.append(("depths", (name, data, "application/octet-stream")))
-        for name, data in upload.masks.items():
-            files.append(("masks", (name, data, media.UPLOAD_FORMATS[media.sniff(data) or "png"])))
+        if isinstance(upload, Upload):
+            for name, data in upload.depths.items():
+                files.append(("depths", (name, data, "application/octet-stream")))
+            for name, data in upload.masks.items():
+                kind = media.sniff(data) or "png"
+                files.append(("masks", (name, data, media.UPLOAD_FORMATS[kind])))
         key = uuid.uuid4().hex if idempotency_key == "auto" else idempotency_key
         return _Call(
             "POST",
@@ -234,7 +242,7 @@ class _Base:
             self.timeouts.upload,
             idempotent=key is not None,
             files=files,
-            data={"spec": _spec_json(spec, upload.preset)},
+            data=form,
             headers={"Idempotency-Key": key} if key else {},
         )
 

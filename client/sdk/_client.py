@@ -13,10 +13,11 @@ from typing import Any
 
 import httpx
 
-from sparsesplat.api.cameras import PinholeCamera
+from sparsesplat.api.cameras import Intrinsics, PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, Record
 from sparsesplat.api.schemas import Health, Readiness
 from sparsesplat.client.errors import APIError, ConnectionFailed, SparsesplatError, Timeout
+from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
 from sparsesplat.client.sdk._base import T, _Base, _Call
 from sparsesplat.client.sdk._config import IdempotencyKey, RetryPolicy, Timeouts
@@ -84,19 +85,20 @@ class Client(_Base):
 
     def submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None = None,
         *,
         idempotency_key: IdempotencyKey = "auto",
     ) -> JobHandle:
-        """Submit a prepared :class:`~sparsesplat.client.scenes.Upload` as a training job.
+        """Submit a prepared :class:`~sparsesplat.client.scenes.Upload` (or
+        :class:`~sparsesplat.client.photos.Photos`, photos without cameras) as a training job.
 
         ``spec`` is a :class:`~sparsesplat.api.jobs.JobSpec` or its dict (iterations or
         time_budget_s, preset, depth_prior, seed…); the upload's preset fills in a missing
         one. An ``Idempotency-Key`` is sent (a fresh one unless given), so a retried
         submission returns the first job instead of creating a second."""
         job = self._send(self._c_submit(upload, spec, idempotency_key))
-        return JobHandle(self, job, upload)
+        return JobHandle(self, job, upload if isinstance(upload, Upload) else None)
 
     def submit_folder(
         self,
@@ -111,11 +113,28 @@ class Client(_Base):
     ) -> JobHandle:
         """Submit a dataset folder in any format the engine reads (LLFF, Blender, DTU,
         instant-ngp, an upload folder) with the paper's training views; see
-        :func:`~sparsesplat.client.scenes.read_scene` for the arguments."""
+        :func:`~sparsesplat.client.scenes.read_scene` for the arguments. A folder of photos
+        alone (no cameras file) goes up as :meth:`submit_photos`."""
+        if format is None and is_photo_folder(Path(path)):
+            return self.submit_photos([path], spec, idempotency_key=idempotency_key)
         upload = read_scene(
             path, views=views, test_views=test_views, downscale=downscale, format=format
         )
         return self.submit(upload, spec, idempotency_key=idempotency_key)
+
+    def submit_photos(
+        self,
+        photos: Sequence[str | Path],
+        spec: JobSpec | dict[str, Any] | None = None,
+        *,
+        intrinsics: Intrinsics | None = None,
+        idempotency_key: IdempotencyKey = "auto",
+    ) -> JobHandle:
+        """Submit photos without cameras (a folder of them, or files): the job estimates their
+        cameras first (phase ``estimating cameras``; ``progress.cameras`` says how it went),
+        then trains; ``intrinsics`` (pixels, shared) are held fixed when given. Photos that
+        cannot be placed fail the job with a message naming them."""
+        return self.submit(read_photos(photos, intrinsics), spec, idempotency_key=idempotency_key)
 
     def submit_images(
         self,
@@ -283,14 +302,14 @@ class AsyncClient(_Base):
 
     async def submit(
         self,
-        upload: Upload,
+        upload: Upload | Photos,
         spec: JobSpec | dict[str, Any] | None = None,
         *,
         idempotency_key: IdempotencyKey = "auto",
     ) -> AsyncJobHandle:
         """See :meth:`Client.submit`."""
         job = await self._send(self._c_submit(upload, spec, idempotency_key))
-        return AsyncJobHandle(self, job, upload)
+        return AsyncJobHandle(self, job, upload if isinstance(upload, Upload) else None)
 
     async def submit_folder(
         self,
@@ -304,10 +323,24 @@ class AsyncClient(_Base):
         idempotency_key: IdempotencyKey = "auto",
     ) -> AsyncJobHandle:
         """See :meth:`Client.submit_folder` (the folder is read in a thread)."""
+        if format is None and is_photo_folder(Path(path)):
+            return await self.submit_photos([path], spec, idempotency_key=idempotency_key)
         upload = await asyncio.to_thread(
             read_scene, path, views=views, test_views=test_views, downscale=downscale,
             format=format,
         )  # fmt: skip
+        return await self.submit(upload, spec, idempotency_key=idempotency_key)
+
+    async def submit_photos(
+        self,
+        photos: Sequence[str | Path],
+        spec: JobSpec | dict[str, Any] | None = None,
+        *,
+        intrinsics: Intrinsics | None = None,
+        idempotency_key: IdempotencyKey = "auto",
+    ) -> AsyncJobHandle:
+        """See :meth:`Client.submit_photos` (the photos are read in a thread)."""
+        upload = await asyncio.to_thread(read_photos, photos, intrinsics)
         return await self.submit(upload, spec, idempotency_key=idempotency_key)
 
     async def submit_images(

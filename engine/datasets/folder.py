@@ -37,6 +37,7 @@ from sparsesplat.engine.datasets.splits import check_view_count
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.images import image_size, read_depth
 from sparsesplat.engine.scene import Scene, View
+from sparsesplat.engine.sfm.points import read_sparse_points
 
 log = logging.getLogger(__name__)
 
@@ -198,4 +199,5 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
         init_box=box,
         train_indices=train_idx,
         test_indices=test_idx,
+        sparse_points=read_sparse_points(root),
     )

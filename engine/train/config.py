@@ -47,7 +47,9 @@ class InitConfig:
     the depth is the run's prior when it is metric (plane sweep), else a plane-sweep prior
     computed for the init (cached under ``out_dir/priors``). SH colour takes the pixel colours
     as DC. Falls back to 'random' with a warning (``metrics['init']``) when no pixel is
-    confident."""
+    confident. 'sparse': the scene's sparse points (``Scene.sparse_points``, from the camera
+    estimation of photos uploaded without cameras) with their colours, topped up with jittered
+    copies to the point count; falls back to 'random' saying why when the scene has none."""
     box: Box | None = None
     """Box for random init; None uses the scene's ``init_box``, else one fitted to the frusta."""
     points: int | None = None

@@ -48,7 +48,7 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, make_color_model
 from sparsesplat.engine.color.sh import C0
 from sparsesplat.engine.datasets.common import with_background
-from sparsesplat.engine.errors import EngineError, PriorError, SceneError, TrainingDiverged
+from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import (
     SSIMTarget,
@@ -62,13 +62,13 @@ from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.consistency import WarpConsistency
-from sparsesplat.engine.train.dense_init import dense_points_from_priors, init_priors
 from sparsesplat.engine.train.densify import DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_gate import agreeing_views
 from sparsesplat.engine.train.depth_regularizer import DepthRegularizer
 from sparsesplat.engine.train.dropout import PhotometricDropout, scatter_output
 from sparsesplat.engine.train.dtu_background import DtuBackground
 from sparsesplat.engine.train.guard import DivergenceGuard
+from sparsesplat.engine.train.initial_points import initial_points
 from sparsesplat.engine.train.near_prune import NearPrune
 from sparsesplat.engine.train.parts import StageTimer, TrainView
 from sparsesplat.engine.train.progress import (
@@ -77,7 +77,7 @@ from sparsesplat.engine.train.progress import (
     StateChange,
     wants_stop,
 )
-from sparsesplat.engine.train.random_init import frusta_box, initial_point_count
+from sparsesplat.engine.train.random_init import frusta_box
 from sparsesplat.engine.train.recorder import Recorder, json_safe, model_sh, render_model
 from sparsesplat.engine.train.schedule import ScheduleClock, position_lr
 
@@ -255,30 +255,13 @@ class Trainer:
         return views
 
     def _initial_points(self, depth: list[Any] | None) -> tuple[Tensor, Tensor | None]:
-        """Hook ``init_points``: points (N, 3) and, from the dense init, their colours."""
-        cfg, g = self.config, self.generator
-        lo, hi = self.box
-        if cfg.init.points is not None:
-            n = cfg.init.points
-        else:
-            n = initial_point_count(cfg.init, lo, hi, [c.center.cpu() for c in self.cameras])
-        if cfg.init.method == "dense":
-            try:
-                cache = self.out_dir / "priors" if self.out_dir is not None else None
-                points, colours = dense_points_from_priors(
-                    [v.image for v in self.scene.train],
-                    [v.camera for v in self.scene.train],
-                    init_priors(self.scene, depth, cache),
-                    target=cfg.init.dense_points or n,
-                    generator=g,
-                    min_confidence=cfg.init.dense_min_confidence,
-                )
-                self.init_note = f"dense: {len(points)} points"
-                return points, colours
-            except PriorError as exc:
-                self.init_note = f"random: dense init failed ({exc})"
-                log.warning("init='dense' fell back to a random box: %s", exc)
-        return lo + torch.rand(n, 3, generator=g) * (hi - lo), None
+        """Hook ``init_points``: points (N, 3) and, from the dense/sparse inits, colours."""
+        cache = self.out_dir / "priors" if self.out_dir is not None else None
+        points, colours, note = initial_points(
+            self.config.init, self.scene, self.box, self.cameras, depth, cache, self.generator
+        )
+        self.init_note = note if note is not None else self.init_note
+        return points, colours
 
     def _setup_model(self, init_depth: list[Any] | None) -> None:
         cfg, g = self.config, self.generator

@@ -13,6 +13,7 @@ from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
+from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import new_job_id
 from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
@@ -31,12 +32,18 @@ UPLOAD_SCHEMA = {
             "multipart/form-data": {
                 "schema": {
                     "type": "object",
-                    "required": ["cameras", "images"],
+                    "required": ["images"],
                     "properties": {
                         "cameras": {
                             "type": "string",
                             "format": "binary",
-                            "description": "cameras.json (see api/cameras.py)",
+                            "description": "cameras.json (see api/cameras.py); without it the "
+                            "images are photos whose cameras the job estimates first",
+                        },
+                        "intrinsics": {
+                            "type": "string",
+                            "description": "photos without cameras: shared pinhole intrinsics "
+                            "as JSON {fx, fy, cx, cy} in pixels, held fixed",
                         },
                         "images": {
                             "type": "array",
@@ -79,7 +86,8 @@ async def submit_job(
     idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
 ) -> Job:
     """Multipart upload: ``cameras`` (cameras.json), ``images`` (one per frame), optional
-    ``depths``, ``masks`` and ``spec`` (JSON JobSpec). With an ``Idempotency-Key`` a retried
+    ``depths``, ``masks`` and ``spec`` (JSON JobSpec); or, without ``cameras``, photos whose
+    cameras the job estimates first (optional ``intrinsics``). With an ``Idempotency-Key`` a retried
     submission returns the first job (200) instead of creating a second one."""
     settings = service.settings
     if idempotency_key is not None:
@@ -208,7 +216,12 @@ def get_image(
     job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
 ) -> FileResponse:
     """The ``index``-th frame's image as uploaded (frames in ``cameras.json`` order)."""
-    frames = json.loads((service.storage.upload_dir(job.id) / "cameras.json").read_text())["frames"]
+    upload = service.storage.upload_dir(job.id)
+    if (upload / "cameras.json").is_file():
+        frames = json.loads((upload / "cameras.json").read_text())["frames"]
+    else:  # photos without cameras, not estimated yet (server/photo_upload.py)
+        manifest = json.loads((upload / PHOTOS_FILE).read_text())
+        frames = [{"image": image} for image in manifest["images"]]
     if index >= len(frames):
         raise ServiceError(404, "image_not_found", f"job {job.id} has {len(frames)} images")
     path = service.storage.upload_dir(job.id) / frames[index]["image"]

@@ -1,0 +1,69 @@
+"""Similarity alignment of estimated cameras to reference cameras (for measuring, and for
+mapping held-out reference cameras into an estimated frame)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Similarity:
+    """x_est = scale * rotation @ x_ref + translation."""
+
+    rotation: np.ndarray
+    """(3, 3) rotation taking reference world axes to estimated world axes."""
+    scale: float
+    """Reference units -> estimated units."""
+    translation: np.ndarray
+    """(3,) offset in estimated units."""
+
+    def map_world_to_camera(self, w2c_ref: np.ndarray) -> np.ndarray:
+        """A reference world-to-camera (4x4, OpenCV) expressed in the estimated frame."""
+        r, t = w2c_ref[:3, :3], w2c_ref[:3, 3]
+        centre = -r.T @ t
+        r_est = r @ self.rotation.T
+        c_est = self.scale * self.rotation @ centre + self.translation
+        out = np.eye(4)
+        out[:3, :3] = r_est
+        out[:3, 3] = -r_est @ c_est
+        return out
+
+
+def _project_rotation(m: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def rotation_angle_deg(r: np.ndarray) -> float:
+    """Angle of the rotation matrix ``r`` in degrees."""
+    return math.degrees(math.acos(float(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def align(est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray]) -> Similarity:
+    """The similarity taking the reference frame to the estimated one: the rotation that best
+    agrees with every camera's orientation (chordal mean of R_est^T R_ref), then scale and
+    translation by least squares on the camera centres."""
+    q = _project_rotation(
+        sum(e[:3, :3].T @ r[:3, :3] for e, r in zip(est_w2c, ref_w2c, strict=True))
+    )
+    c_est = np.array([-e[:3, :3].T @ e[:3, 3] for e in est_w2c])
+    c_ref = np.array([-r[:3, :3].T @ r[:3, 3] for r in ref_w2c]) @ q.T
+    d_est, d_ref = c_est - c_est.mean(0), c_ref - c_ref.mean(0)
+    denom = float((d_ref**2).sum())
+    scale = float((d_est * d_ref).sum()) / denom if denom > 0 else 1.0
+    translation = c_est.mean(0) - scale * c_ref.mean(0)
+    return Similarity(q, scale, translation)
+
+
+def rotation_errors_deg(
+    est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray], similarity: Similarity
+) -> list[float]:
+    """Per camera: the angle between its estimated orientation and the aligned reference."""
+    return [
+        rotation_angle_deg(e[:3, :3].T @ r[:3, :3] @ similarity.rotation.T)
+        for e, r in zip(est_w2c, ref_w2c, strict=True)
+    ]

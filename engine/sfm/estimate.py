@@ -1,0 +1,200 @@
+"""Estimate the cameras of a few photos: the entry point of ``engine.sfm``."""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sparsesplat.api.cameras import (
+    MIN_PHOTOS,
+    AxisConvention,
+    CameraFrame,
+    CamerasFile,
+    Intrinsics,
+    PoseDirection,
+)
+from sparsesplat.engine.sfm.attempts import ATTEMPTS
+from sparsesplat.engine.sfm.check import (
+    input_problem,
+    median_triangulation_angle_deg,
+    result_problem,
+)
+from sparsesplat.engine.sfm.errors import CameraEstimationError
+from sparsesplat.engine.sfm.exif import exif_focal_px
+from sparsesplat.engine.sfm.frame import normalise
+from sparsesplat.engine.sfm.reconstruct import CameraPrior, Reconstruction, run_colmap
+
+log = logging.getLogger(__name__)
+
+DEFAULT_FOCAL_FACTOR = 1.2
+"""Focal length guess without EXIF or user intrinsics: this times the longer image side
+(COLMAP's own default, a ~45° field of view); bundle adjustment refines it."""
+
+
+@dataclass
+class CameraEstimate:
+    """Estimated cameras in the one camera schema, with the sparse points."""
+
+    cameras: CamerasFile
+    """OpenCV camera-to-world frames (the photos' own names, all ``train``), near/far and the
+    init box, in the normalised frame (:mod:`.frame`)."""
+    points: np.ndarray
+    """(N, 3) float32 triangulated points, same frame."""
+    colours: np.ndarray
+    """(N, 3) float32 RGB in [0, 1] of the points."""
+    seconds: float
+    """Wall time of the estimation."""
+    attempt: str
+    """Name of the settings that succeeded (:data:`.attempts.ATTEMPTS`)."""
+    reprojection_error_px: float
+    """Mean reprojection error of the points (pixels)."""
+    triangulation_angle_deg: float
+    """Median triangulation angle of the points (degrees)."""
+    focal_source: str
+    """Where the starting focal length came from: 'given', 'exif' or 'guess'."""
+
+    def summary(self) -> dict[str, float | int | str]:
+        """The figures reported with a job (views, points, error, angle, seconds)."""
+        return {
+            "views": len(self.cameras.frames),
+            "points": len(self.points),
+            "reprojection_error_px": round(self.reprojection_error_px, 3),
+            "triangulation_angle_deg": round(self.triangulation_angle_deg, 2),
+            "seconds": round(self.seconds, 2),
+            "attempt": self.attempt,
+            "focal": self.focal_source,
+        }
+
+
+def estimate_cameras(
+    paths: list[Path],
+    intrinsics: Intrinsics | None = None,
+    *,
+    threads: int = 1,
+    seed: int = 0,
+    labels: list[str] | None = None,
+) -> CameraEstimate:
+    """Estimate one shared pinhole camera and a pose per photo in ``paths`` (all the same
+    size), or raise :class:`CameraEstimationError` naming the photos at fault and what to do.
+
+    ``intrinsics`` are held fixed when given; else an EXIF focal length (35 mm equivalent) or
+    1.2x the longer side starts bundle adjustment. Messages name the photos by ``labels``
+    (e.g. the names they were uploaded under; default: their file names). The settings of
+    :data:`ATTEMPTS` are tried in order until a result passes every check of :mod:`.check`."""
+    started = time.perf_counter()
+    names = [p.name for p in paths]
+    shown = labels if labels is not None else names
+    if len(shown) != len(paths):
+        raise ValueError(f"{len(shown)} labels for {len(paths)} photos")
+    if len(paths) < MIN_PHOTOS:
+        raise CameraEstimationError(
+            f"need at least {MIN_PHOTOS} photos of the same scene from different places to "
+            f"estimate cameras, got {len(paths)}"
+        )
+    if len(set(names)) != len(names):
+        raise CameraEstimationError("two photos have the same file name: rename one")
+    width, height = _common_size(paths, shown)
+    prior, source = _prior(paths, width, height, intrinsics)
+    rec: Reconstruction | None = None
+    problem = None
+    with tempfile.TemporaryDirectory(prefix="sparsesplat-sfm-") as tmp:
+        image_dir = paths[0].parent
+        if any(p.parent != image_dir for p in paths):
+            raise CameraEstimationError("the photos must be in one folder")
+        for k, attempt in enumerate(ATTEMPTS):
+            rec, stats = run_colmap(
+                image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
+            )
+            problem = input_problem(shown, stats)
+            if problem is not None:
+                break
+            problem = result_problem(shown, stats, rec, attempt.min_inliers)
+            log.info("camera estimation attempt", extra={"attempt": attempt.name,
+                                                         "problem": problem})  # fmt: skip
+            if problem is None:
+                break
+    if problem is not None or rec is None:
+        raise CameraEstimationError(f"cannot estimate the cameras: {problem}")
+    frame = normalise(rec)
+    fx, fy, cx, cy = rec.intrinsics
+    frames = [
+        CameraFrame(
+            image=name,
+            matrix=_camera_to_world(frame.world_to_camera[i]).tolist(),
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            width=width,
+            height=height,
+        )
+        for i, name in enumerate(names)
+    ]
+    cameras = CamerasFile(
+        convention=AxisConvention.opencv,
+        pose=PoseDirection.camera_to_world,
+        frames=frames,
+        near=frame.near,
+        far=frame.far,
+        init_box=frame.init_box,
+    )
+    return CameraEstimate(
+        cameras=cameras,
+        points=frame.points.astype(np.float32),
+        colours=rec.colours,
+        seconds=time.perf_counter() - started,
+        attempt=ATTEMPTS[k].name,
+        reprojection_error_px=rec.reprojection_error_px,
+        triangulation_angle_deg=median_triangulation_angle_deg(rec),
+        focal_source=source,
+    )
+
+
+def _camera_to_world(w2c: np.ndarray) -> np.ndarray:
+    """The rigid inverse [R^T, -R^T t] (exactly rigid, unlike a general inverse)."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = w2c[:3, :3].T
+    c2w[:3, 3] = -w2c[:3, :3].T @ w2c[:3, 3]
+    return c2w
+
+
+def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:
+    from PIL import Image, UnidentifiedImageError
+
+    sizes = []
+    for i, path in enumerate(paths):
+        try:
+            with Image.open(path) as image:
+                sizes.append(image.size)
+        except (OSError, UnidentifiedImageError) as exc:
+            raise CameraEstimationError(
+                f"photo {i + 1} ({shown[i]}) is not a readable image ({exc})"
+            ) from exc
+    for i, size in enumerate(sizes):
+        if size != sizes[0]:
+            raise CameraEstimationError(
+                f"photo {i + 1} ({shown[i]}) is {size[0]}x{size[1]} but photo 1 "
+                f"({shown[0]}) is {sizes[0][0]}x{sizes[0][1]}: the photos must come from "
+                "one camera at one size"
+            )
+    return sizes[0]
+
+
+def _prior(
+    paths: list[Path], width: int, height: int, intrinsics: Intrinsics | None
+) -> tuple[CameraPrior, str]:
+    if intrinsics is not None:
+        i = intrinsics
+        return CameraPrior(i.fx, i.fy, i.cx, i.cy, fixed=True), "given"
+    exif = [f for f in (exif_focal_px(p, width, height) for p in paths) if f is not None]
+    focal, source = (
+        (float(np.median(exif)), "exif")
+        if exif
+        else (DEFAULT_FOCAL_FACTOR * max(width, height), "guess")
+    )
+    return CameraPrior(focal, focal, width / 2, height / 2, fixed=False), source

@@ -1,0 +1,147 @@
+"""Camera estimation on a synthetic textured scene with exact poses, and the refusals."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sparsesplat.api.cameras import Intrinsics
+from sparsesplat.engine.datasets import load_scene
+from sparsesplat.engine.sfm import CameraEstimate, CameraEstimationError, estimate_cameras
+from sparsesplat.engine.sfm.align import align, rotation_errors_deg
+from sparsesplat.engine.sfm.store import write_estimate
+from tests.engine.sfm.textured import FOCAL, HEIGHT, WIDTH, camera_poses, write_photos
+
+pytest.importorskip("pycolmap")
+
+
+@pytest.fixture(scope="module")
+def three(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Path], list[np.ndarray]]:
+    """Three photos of the textured corner from a sideways arc, and their true poses."""
+    poses = camera_poses(3)
+    return write_photos(tmp_path_factory.mktemp("three"), poses), poses
+
+
+@pytest.fixture(scope="module")
+def estimate(three: tuple[list[Path], list[np.ndarray]]) -> CameraEstimate:
+    return estimate_cameras(three[0], threads=1)
+
+
+def _w2c(result: CameraEstimate) -> list[np.ndarray]:
+    return [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
+
+
+def test_poses_match_the_truth_after_alignment(estimate: CameraEstimate, three) -> None:
+    poses = three[1]
+    est = _w2c(estimate)
+    similarity = align(est, poses)
+    # Exact renders: sub-pixel features give orientations within a fraction of a degree
+    # (measured 0.03-0.09°); 0.5° is far below what a wrong registration gives (tens).
+    assert max(rotation_errors_deg(est, poses, similarity)) < 0.5
+    for e, p in zip(est, poses, strict=True):
+        mapped = similarity.map_world_to_camera(p)
+        centre_e = -e[:3, :3].T @ e[:3, 3]
+        centre_p = -mapped[:3, :3].T @ mapped[:3, 3]
+        baseline = similarity.scale * 1.0  # the arc spans 1.0 unit
+        assert np.linalg.norm(centre_e - centre_p) < 0.05 * baseline
+    # The focal length started from 1.2 x width = 384 px and was refined to the truth.
+    assert estimate.focal_source == "guess"
+    assert abs(estimate.cameras.frames[0].fx - FOCAL) < 0.03 * FOCAL
+    assert estimate.reprojection_error_px < 1.0 and len(estimate.points) > 100
+
+
+def test_frame_is_normalised_with_bounds(estimate: CameraEstimate) -> None:
+    cameras, points = estimate.cameras, estimate.points.astype(np.float64)
+    assert cameras.convention == "opencv" and cameras.pose == "camera_to_world"
+    # The middle 96% of the points lie within [-1, 1] on the widest axis, centred.
+    spread = np.percentile(points, 98, axis=0) - np.percentile(points, 2, axis=0)
+    assert spread.max() == pytest.approx(2.0, rel=1e-6)
+    assert np.abs(np.median(points, axis=0)).max() < 1e-6  # float32 storage
+    low, high = (np.array(c) for c in cameras.init_box)
+    inside = ((points >= low) & (points <= high)).all(axis=1).mean()
+    assert inside > 0.95
+    assert cameras.near is not None and cameras.far is not None
+    for w2c in _w2c(estimate):
+        depth = points @ w2c[2, :3] + w2c[2, 3]
+        assert np.mean((depth > cameras.near) & (depth < cameras.far)) > 0.95
+    # The first photo's axes are the world's.
+    assert np.allclose(_w2c(estimate)[0][:3, :3], np.eye(3), atol=1e-9)
+
+
+def test_given_intrinsics_are_held(three) -> None:
+    given = Intrinsics(fx=FOCAL, fy=FOCAL, cx=WIDTH / 2, cy=HEIGHT / 2)
+    result = estimate_cameras(three[0], given, threads=1)
+    frame = result.cameras.frames[0]
+    assert (frame.fx, frame.fy, frame.cx, frame.cy) == (FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2)
+    assert result.focal_source == "given"
+    assert max(rotation_errors_deg(_w2c(result), three[1], align(_w2c(result), three[1]))) < 0.5
+
+
+def test_written_folder_loads_with_its_points(estimate: CameraEstimate, three, tmp_path) -> None:
+    for path in three[0]:
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    write_estimate(estimate, tmp_path / "cameras.json")
+    scene = load_scene(tmp_path)
+    assert scene.format == "folder" and len(scene.train) == 3
+    assert scene.near == pytest.approx(estimate.cameras.near)
+    assert scene.sparse_points is not None
+    assert np.array_equal(scene.sparse_points[0].numpy(), estimate.points)
+
+
+def test_one_photo_is_refused(three) -> None:
+    with pytest.raises(CameraEstimationError, match="at least 2 photos"):
+        estimate_cameras(three[0][:1])
+
+
+def test_copies_of_one_photo_are_refused(three, tmp_path) -> None:
+    copies = []
+    for i in range(3):
+        copies.append(tmp_path / f"copy_{i}.png")
+        copies[-1].write_bytes(three[0][1].read_bytes())
+    with pytest.raises(CameraEstimationError, match=r"photos 1 \(copy_0.png\) and 2 .*same view"):
+        estimate_cameras(copies, threads=1)
+
+
+def test_blank_photo_is_named(three, tmp_path) -> None:
+    paths = []
+    for path in three[0]:
+        paths.append(tmp_path / path.name)
+        paths[-1].write_bytes(path.read_bytes())
+    Image.new("RGB", (WIDTH, HEIGHT), (128, 128, 128)).save(paths[2])
+    with pytest.raises(CameraEstimationError, match=r"photo 3 \(photo_2.png\) has almost nothing"):
+        estimate_cameras(paths, threads=1)
+
+
+def test_unrelated_photos_are_refused(tmp_path) -> None:
+    pose = camera_poses(1)
+    a = write_photos(tmp_path / "a", pose, seed=1, prefix="kitchen")
+    write_photos(tmp_path / "b", pose, seed=2, prefix="garden")
+    (tmp_path / "b" / "garden_0.png").replace(tmp_path / "a" / "garden_0.png")
+    paths = [a[0], tmp_path / "a" / "garden_0.png"]
+    with pytest.raises(CameraEstimationError, match=r"share enough features|too few features"):
+        estimate_cameras(paths, threads=1)
+
+
+def test_command_writes_cameras_and_refuses_one_photo(three, tmp_path) -> None:
+    for path in three[0]:
+        (tmp_path / path.name).write_bytes(path.read_bytes())
+    env_cmd = [sys.executable, "-m", "sparsesplat", "cameras"]
+    done = subprocess.run([*env_cmd, str(tmp_path), "--threads", "1"], capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["views"] == 3
+    written = json.loads((tmp_path / "cameras.json").read_text())
+    assert [f["image"] for f in written["frames"]] == [p.name for p in three[0]]
+    assert (tmp_path / "sparse_points.npz").is_file()
+    alone = str(tmp_path / three[0][0].name)
+    one = subprocess.run([*env_cmd, alone, "-o", str(tmp_path / "one.json")],
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert one.returncode == 2 and "at least 2 photos" in one.stderr
+    assert not (tmp_path / "one.json").exists()

@@ -1,0 +1,124 @@
+"""The pieces of engine/sfm that need no COLMAP: alignment, sparse init, EXIF focal, points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from scipy.spatial.transform import Rotation
+
+from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.sfm.align import align, rotation_errors_deg
+from sparsesplat.engine.sfm.exif import exif_focal_px
+from sparsesplat.engine.sfm.points import (
+    read_sparse_points,
+    sparse_initial_points,
+    write_sparse_points,
+)
+
+
+def _pose(rng: np.random.Generator) -> np.ndarray:
+    w2c = np.eye(4)
+    w2c[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+    w2c[:3, 3] = rng.normal(size=3)
+    return w2c
+
+
+def test_align_recovers_a_known_similarity() -> None:
+    rng = np.random.default_rng(0)
+    ref = [_pose(rng) for _ in range(4)]
+    q = Rotation.random(random_state=1).as_matrix()
+    scale, shift = 2.5, np.array([0.3, -1.0, 4.0])
+    # x_est = s q x_ref + shift  =>  R_est = R_ref q^T, c_est = s q c_ref + shift
+    est = []
+    for w2c in ref:
+        r = w2c[:3, :3] @ q.T
+        centre = scale * q @ (-w2c[:3, :3].T @ w2c[:3, 3]) + shift
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = r, -r @ centre
+        est.append(out)
+    sim = align(est, ref)
+    assert np.allclose(sim.rotation, q, atol=1e-12)
+    assert sim.scale == pytest.approx(scale, rel=1e-12)
+    assert np.allclose(sim.translation, shift, atol=1e-12)
+    assert max(rotation_errors_deg(est, ref, sim)) < 1e-5
+    assert np.allclose(sim.map_world_to_camera(ref[2]), est[2], atol=1e-12)
+
+
+def test_sparse_init_keeps_every_point_and_tops_up_near_them() -> None:
+    g = torch.Generator().manual_seed(0)
+    points = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    colours = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    out, rgb = sparse_initial_points((points, colours), 300, g)
+    assert out.shape == (300, 3) and rgb.shape == (300, 3)
+    assert torch.equal(out[:3], points) and torch.equal(rgb[:3], colours)
+    # Each copy has a source's colour (unique here, so it names the source) and stays within
+    # 6 sigma of it (sigma: half the source's nearest-neighbour spacing, 1, 1 and 2 here).
+    source = (rgb[3:, None, :] == colours[None]).all(dim=-1).float().argmax(dim=1)
+    assert torch.equal(rgb[3:], colours[source])
+    sigma = 0.5 * torch.tensor([1.0, 1.0, 2.0])[source]
+    assert ((out[3:] - points[source]).norm(dim=1) < 6 * sigma).all()
+    assert set(source.tolist()) == {0, 1, 2}
+    same, _ = sparse_initial_points((points, colours), 2, g)
+    assert torch.equal(same, points)
+    with pytest.raises(SceneError, match="sparse points"):
+        sparse_initial_points(None, 10, g)
+
+
+def test_points_file_round_trip_and_refusals(tmp_path) -> None:
+    assert read_sparse_points(tmp_path) is None
+    pts = np.arange(12, dtype=np.float32).reshape(4, 3)
+    write_sparse_points(tmp_path, pts, np.full((4, 3), 0.5, np.float32))
+    loaded = read_sparse_points(tmp_path)
+    assert loaded is not None and np.array_equal(loaded[0].numpy(), pts)
+    np.savez(
+        tmp_path / "sparse_points.npz", points=np.full((2, 3), np.nan), colours=np.zeros((2, 3))
+    )
+    with pytest.raises(SceneError, match="NaN"):
+        read_sparse_points(tmp_path)
+
+
+def test_exif_focal_from_35mm_equivalent(tmp_path) -> None:
+    image = Image.new("RGB", (400, 300))
+    exif = Image.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 27  # 27 mm equivalent: 0.75 x the longer side
+    image.save(tmp_path / "a.jpg", exif=exif)
+    assert exif_focal_px(tmp_path / "a.jpg", 400, 300) == pytest.approx(27 / 36 * 400)
+    image.save(tmp_path / "b.png")
+    assert exif_focal_px(tmp_path / "b.png", 400, 300) is None
+
+
+def test_trainer_starts_from_the_sparse_points_or_says_it_could_not() -> None:
+    import dataclasses
+
+    from sparsesplat.engine.synthetic import make_scene
+    from sparsesplat.engine.train import Trainer, preset
+
+    scene, _ = make_scene(seed=0)
+    points = torch.tensor([[0.1, 0.2, 0.3], [-0.4, 0.0, 0.5], [0.3, -0.2, -0.1]])
+    colours = torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.1, 0.1, 0.9]])
+    config = preset("default", iterations=1, depth_prior="none", color_model="sh",
+                    init="sparse", init_points=50)  # fmt: skip
+    with_points = Trainer(dataclasses.replace(scene, sparse_points=(points, colours)), config)
+    assert with_points.init_note == "sparse: 50 points"
+    means = with_points.gaussians.params["means"].detach()
+    assert torch.equal(means[:3], points)
+    # SH DC holds the points' colours: C0 * dc + 0.5 recovers them.
+    from sparsesplat.engine.color.sh import C0
+
+    dc = with_points.gaussians.params["sh_dc"].detach()[:3, 0]
+    assert torch.allclose(C0 * dc + 0.5, colours, atol=1e-6)
+    without = Trainer(scene, config)
+    assert without.init_note is not None and without.init_note.startswith("random: sparse init")
+
+
+def test_without_pycolmap_the_error_says_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from sparsesplat.engine.sfm.colmap import require_pycolmap
+    from sparsesplat.engine.sfm.errors import MissingSfmDependency
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # as if not installed
+    with pytest.raises(MissingSfmDependency, match=r"pip install 'sparsesplat\[sfm\]'"):
+        require_pycolmap()
