@@ -84,7 +84,7 @@ def test_exact_mode_equals_the_trainers_evaluation_render(trained: Any) -> None:
     scene, run, _ = trained
     model = load_model(run)
     raster = lambda *a: rasterize(  # noqa: E731
-        *a, near=model.raster_near, eps2d=model.config.eps2d, backend=model.config.raster_backend
+        *a, near=model.raster_near, eps2d=model.config.raster.eps2d, backend=model.config.raster.backend
     )
     geo = model.color.geo_features(model.gaussians)
     for view in scene.test:
@@ -111,7 +111,7 @@ def test_baked_mode_is_the_export_and_scores_the_trainers_baking_psnr(trained: A
         with torch.no_grad():
             want = rasterize(
                 g.means, g.log_scales, g.quats, g.opacity_logits, colours, view.camera,
-                model.background, near=model.raster_near, eps2d=model.config.eps2d,
+                model.background, near=model.raster_near, eps2d=model.config.raster.eps2d,
             ).image  # fmt: skip
         assert torch.equal(baked, want)
         neural = model.render(view.camera, mode="neural").image
