@@ -365,10 +365,10 @@ def test_presets_train_their_default_length_and_any_length_from_the_reference() 
         assert preset(name).iterations == PRESET_ITERATIONS[name], name
     reference = preset("llff", iterations=REFERENCE_ITERATIONS)
     assert (reference.densify.until, reference.depth.soft_start) == (6000, 1000)
-    longer = preset("llff", iterations=3000)  # longer than the default 1500, still exact
+    longer = preset("dtu", iterations=3000)  # longer than the default 1500, still exact
     assert (longer.densify.until, longer.depth.soft_start) == (3000, 500)
-    # with_iterations on the compressed default can only shorten: the reason preset() exists
-    assert preset("llff").with_iterations(3000).densify.until == 1500
+    # with_iterations on a compressed config can only shorten: the reason preset() exists
+    assert preset("llff", iterations=1500).with_iterations(3000).densify.until == 1500
     with pytest.raises(ConfigError, match="iterations must be"):
         preset("llff", iterations="many")
     with pytest.raises(ConfigError, match="iterations must be >= 1"):

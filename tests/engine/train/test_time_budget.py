@@ -9,6 +9,7 @@ import pytest
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.train.presets import PRESET_ITERATIONS
 from sparsesplat.engine.train.run import RunSpec, plan_run
 from sparsesplat.engine.train.schedule import ScheduleClock, position_lr
 from tests.engine.train.test_trainer_parts import small
@@ -125,4 +126,4 @@ def test_a_budget_and_an_iteration_count_are_exclusive() -> None:
         plan_run(RunSpec("llff", time_budget_s=0.0), None)
     plan = plan_run(RunSpec("llff", time_budget_s=90.0), None)
     # the nominal schedule is the preset's default length; the deadline is the config's
-    assert (plan.config.iterations, plan.config.time_budget_s) == (1500, 90.0)
+    assert (plan.config.iterations, plan.config.time_budget_s) == (PRESET_ITERATIONS["llff"], 90.0)
