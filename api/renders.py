@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -60,6 +60,23 @@ class RenderRequest(BaseModel):
     """Integer factor the image size and focal lengths are divided by."""
     quality: int = Field(default=90, ge=1, le=100)
     """JPEG/WebP quality."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _camera_not_wrapped(cls, data: Any) -> Any:
+        # A bare camera posted as the body would otherwise answer one 'extra input' line per
+        # camera field, without saying what the body should look like.
+        if isinstance(data, dict):
+            stray = [
+                k for k in data if k in PinholeCamera.model_fields and k not in cls.model_fields
+            ]
+            if stray:
+                raise ValueError(
+                    f"camera field(s) {', '.join(repr(k) for k in stray)} at the top level of "
+                    'the body: send {"camera": {...}} (one camera) or {"path": [{...}, ...]} '
+                    "(a camera path), with 'output' and 'downscale' beside it"
+                )
+        return data
 
     @model_validator(mode="after")
     def _one_of(self) -> RenderRequest:

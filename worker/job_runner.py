@@ -91,7 +91,7 @@ def run_job(
     try:
         return _train(claim, spec, store, storage, settings, run_dir, beat)
     except EngineError as exc:
-        return Outcome(JobState.failed, str(exc))
+        return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
     except MemoryError:
         return Outcome(JobState.failed, "ran out of memory: try smaller images or fewer Gaussians")
     finally:
@@ -176,6 +176,15 @@ def _train(
             "background": [float(c) for c in trainer.background.tolist()],
         },
     )
+
+
+def public_message(message: str, storage: Storage, job_id: str) -> str:
+    """``message`` with the server's folders taken out: the engine names files by their path,
+    and a user reads them relative to their upload (``cameras.json``, ``images/000.png``)."""
+    for folder in (storage.upload_dir(job_id), storage.run_dir(job_id), storage.root):
+        for form in {str(folder), str(folder.resolve())}:
+            message = message.replace(form + "/", "").replace(form, "the job's folder")
+    return message
 
 
 def _write_prior_pictures(priors: list[Any], pictures: list[Path]) -> None:
