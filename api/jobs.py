@@ -183,6 +183,10 @@ class Job(BaseModel):
     """Held-out images uploaded (scored against renders while training)."""
     has_model: bool = False
     """Whether ``/v1/models/{id}`` can render and export."""
+    warnings: list[str] = Field(default_factory=list)
+    """What training found wrong that the upload could not show (e.g. held-out renders that
+    stay empty, or a model no better than a constant image: usually poses read the wrong way).
+    A job can succeed with warnings; each one is also a ``warning`` event."""
 
 
 class JobPage(BaseModel):
@@ -194,9 +198,10 @@ class JobPage(BaseModel):
     """Pass as ``cursor`` for the next page; None on the last page."""
 
 
-EventType = Literal["state", "progress", "record"]
+EventType = Literal["state", "progress", "record", "warning"]
 """``state``: the job changed state; ``progress``: iteration/phase update; ``record``: a
-held-out error record."""
+held-out error record; ``warning``: something training found wrong (``{message}``, also in
+the job's ``warnings``)."""
 
 
 class Event(BaseModel):
@@ -211,7 +216,8 @@ class Event(BaseModel):
     time: datetime
     """When it was stored (UTC)."""
     data: dict[str, Any]
-    """``state``: {state, message}; ``progress``: a Progress; ``record``: a Record."""
+    """``state``: {state, message}; ``progress``: a Progress; ``record``: a Record;
+    ``warning``: {message}."""
 
 
 class ModelInfo(BaseModel):

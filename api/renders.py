@@ -25,6 +25,13 @@ MEDIA_TYPES: dict[str, str] = {
 """Content type of each output; a camera path answers with a ZIP of numbered frames."""
 
 
+RENDER_WARNING_HEADER = "X-Render-Warning"
+"""Response header present when a render sees (nearly) nothing of the model: its value says
+so and what to check. ``X-Coverage`` always gives each camera's mean alpha (comma-separated)."""
+EMPTY_RENDER_COVERAGE = 0.01
+"""A render whose mean alpha is below this sees (nearly) nothing of the model."""
+
+
 class RenderRequest(BaseModel):
     """Body of ``POST /v1/models/{id}/render``: exactly one of ``camera`` or ``path``."""
 

@@ -32,7 +32,7 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, ModelInfo, Record
-from sparsesplat.api.renders import RenderOutput
+from sparsesplat.api.renders import RENDER_WARNING_HEADER, RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
 from sparsesplat.client import cameras as cams
 from sparsesplat.client import media
@@ -43,10 +43,12 @@ from sparsesplat.client.errors import (
     InvalidInput,
     JobFailed,
     NotFound,
+    RenderWarning,
     ServerError,
     SparsesplatError,
     Timeout,
     error_for_status,
+    warn_about,
 )
 from sparsesplat.client.progress import ProgressBar
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
@@ -189,6 +191,16 @@ def _model(model: type[ModelT]) -> Callable[[httpx.Response], ModelT]:
 
 
 def _content(response: httpx.Response) -> bytes:
+    return response.content
+
+
+def _render_content(response: httpx.Response) -> bytes:
+    """A render's bytes; a :class:`RenderWarning` when the service says it sees nothing."""
+    message = response.headers.get(RENDER_WARNING_HEADER)
+    if message:
+        import warnings
+
+        warnings.warn(f"render: {message}", RenderWarning, stacklevel=4)
     return response.content
 
 
@@ -403,7 +415,9 @@ class _Base:
             timeout = min(self.timeouts.render * max(1, len(path)), self.timeouts.download)
         else:
             body["camera"] = _camera_json(camera) if camera is not None else None
-        return _Call("POST", f"/v1/models/{model_id}/render", _content, timeout, True, json=body)
+        return _Call(
+            "POST", f"/v1/models/{model_id}/render", _render_content, timeout, True, json=body
+        )
 
     def _c_export(self, model_id: str, format: ExportFormat) -> _Call[bytes]:
         if format not in ("ply", "splat", "checkpoint"):
@@ -711,6 +725,7 @@ class JobHandle:
         finally:
             bar.close()
         job = self.refresh()
+        warn_about(job)
         if raise_on_failure and job.state != JobState.succeeded:
             raise JobFailed(job)
         return job
@@ -1132,6 +1147,7 @@ class AsyncJobHandle:
         finally:
             bar.close()
         job = await self.refresh()
+        warn_about(job)
         if raise_on_failure and job.state != JobState.succeeded:
             raise JobFailed(job)
         return job

@@ -117,6 +117,7 @@ def _train(
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
     config, reason = build_config(spec, scene)
     beat.set_preset(config.preset, reason)
+    _carry_progress(store, claim.job_id, beat, config.preset, reason)
     config = _with_service_settings(config, settings)
     priors = None
     if config.uses_depth:
@@ -165,6 +166,8 @@ def _train(
         return Outcome(JobState.queued, "worker shut down; the job resumes from its checkpoint")
     if result.stopped:
         return Outcome(JobState.cancelled, "cancelled; the last checkpoint was kept")
+    for warning in result.metrics.get("warnings", []):
+        store.add_warning(claim.job_id, public_message(str(warning), storage, claim.job_id))
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
     return Outcome(
         JobState.succeeded,
@@ -176,6 +179,21 @@ def _train(
             "background": [float(c) for c in trainer.background.tolist()],
         },
     )
+
+
+def _carry_progress(
+    store: JobStore, job_id: str, beat: JobHeartbeat, preset: str, reason: str | None
+) -> None:
+    """A resumed attempt starts from what the last one published: its latest held-out record
+    and why its preset was chosen (otherwise the progress reads null until the next record)."""
+    job = store.get(job_id)
+    previous = job.progress if job is not None else None
+    if previous is None:
+        return
+    if previous.last_record is not None:
+        beat.set_record(previous.last_record)
+    if reason is None and previous.preset == preset and previous.preset_reason is not None:
+        beat.set_preset(preset, previous.preset_reason)
 
 
 def public_message(message: str, storage: Storage, job_id: str) -> str:

@@ -24,7 +24,12 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from sparsesplat.api.cameras import PinholeCamera
-from sparsesplat.api.renders import MEDIA_TYPES, RenderRequest
+from sparsesplat.api.renders import (
+    EMPTY_RENDER_COVERAGE,
+    MEDIA_TYPES,
+    RENDER_WARNING_HEADER,
+    RenderRequest,
+)
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
@@ -93,8 +98,21 @@ class Renderer:
         """(body, media type, extra headers) for one request."""
         with self._lock:
             model = self.cache.get(model_id)
-            frames = [self._one(model, cam, request) for cam in request.cameras]
-        headers = {}
+            rendered = [self._one(model, cam, request) for cam in request.cameras]
+        frames = [body for body, _ in rendered]
+        headers = {"X-Coverage": ",".join(f"{coverage:.4f}" for _, coverage in rendered)}
+        empty = [i for i, (_, coverage) in enumerate(rendered) if coverage < EMPTY_RENDER_COVERAGE]
+        if empty:
+            which = (
+                "the camera sees"
+                if request.path is None
+                else (f"{len(empty)} of {len(frames)} cameras (from {empty[0]}) see")
+            )
+            headers[RENDER_WARNING_HEADER] = (
+                f"{which} nothing of the model (under {EMPTY_RENDER_COVERAGE:.0%} of pixels "
+                "covered): check the camera's 'convention' and 'pose', and that it is near "
+                "the training cameras and faces the scene"
+            )
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:
@@ -108,11 +126,15 @@ class Renderer:
                 archive.writestr(f"{i:04d}.{suffix}", frame)
         return buffer.getvalue(), MEDIA_TYPES["zip"], headers
 
-    def _one(self, model: Any, camera: PinholeCamera, request: RenderRequest) -> bytes:
+    def _one(
+        self, model: Any, camera: PinholeCamera, request: RenderRequest
+    ) -> tuple[bytes, float]:
+        """One camera's encoded output and its coverage (mean alpha)."""
         out = model.render(engine_camera(camera, request.downscale))
         image = out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy()
         depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
-        return encode(request.output, image, depth, alpha, request.quality)
+        body = encode(request.output, image, depth, alpha, request.quality)
+        return body, float(alpha.mean())
 
 
 def _handler(renderer: Renderer) -> type[BaseHTTPRequestHandler]:

@@ -316,6 +316,22 @@ class JobStore:
         with self.engine.begin() as conn:
             return self._append(conn, job_id, type_, data)
 
+    def add_warning(self, job_id: str, message: str) -> int:
+        """Append ``message`` to the job's warnings and store it as a ``warning`` event (one
+        transaction); returns the event's sequence number. A message already there is not
+        added twice (a resumed run may find the same problem again)."""
+        with self.engine.begin() as conn:
+            current = conn.execute(
+                sa.select(jobs.c.warnings).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+            warnings = list(current or [])
+            if message in warnings:
+                return 0
+            conn.execute(
+                jobs.update().where(jobs.c.id == job_id).values(warnings=[*warnings, message])
+            )
+            return self._append(conn, job_id, "warning", {"message": message})
+
     def finish(
         self,
         job_id: str,
@@ -468,6 +484,7 @@ class JobStore:
             n_train_views=row.n_train_views,
             n_test_views=row.n_test_views,
             has_model=row.state == JobState.succeeded.value,
+            warnings=list(row.warnings or []),
         )
 
 

@@ -131,3 +131,26 @@ def test_keys_are_stored_hashed_and_revocable(store: JobStore) -> None:
     assert key not in stored and len(stored) == 64
     assert keys.revoke(info.id) and keys.verify(key) is None
     assert not keys.revoke(info.id)
+
+
+def test_a_warning_is_a_field_of_the_job_and_an_event_once(store: JobStore) -> None:
+    job_id = _submit(store)
+    message = "2 of 2 evaluated views render (nearly) empty. Check the poses"
+    seq = store.add_warning(job_id, message)
+    assert seq > 0 and store.add_warning(job_id, message) == 0, "the same warning once"
+    assert store.get(job_id).warnings == [message]  # type: ignore[union-attr]
+    warnings = [e for e in store.events_after(job_id) if e.type == "warning"]
+    assert [(e.seq, e.data) for e in warnings] == [(seq, {"message": message})]
+    assert store.get(_submit(store)).warnings == []  # type: ignore[union-attr]
+
+
+def test_a_failed_jobs_message_names_no_server_folder(tmp_path: Path) -> None:
+    from sparsesplat.api.storage import Storage
+    from sparsesplat.worker.job_runner import public_message
+
+    storage = Storage(tmp_path / "data")
+    upload = storage.upload_dir("job_x")
+    engine_says = f"{upload}/cameras.json: no two cameras see a common region"
+    message = public_message(engine_says, storage, "job_x")
+    assert message == "cameras.json: no two cameras see a common region"
+    assert str(tmp_path) not in public_message(f"{storage.root} is full", storage, "job_x")
