@@ -145,13 +145,13 @@ def test_a_warning_is_a_field_of_the_job_and_an_event_once(store: JobStore) -> N
 
 
 def test_a_failed_jobs_message_names_no_server_folder(tmp_path: Path) -> None:
-    JOB = new_job_id()  # noqa: N806
+    job = new_job_id()
     from sparsesplat.api.storage import Storage
     from sparsesplat.worker.job_runner import public_message
 
     storage = Storage(tmp_path / "data")
-    upload = storage.upload_dir(JOB)
+    upload = storage.upload_dir(job)
     engine_says = f"{upload}/cameras.json: no two cameras see a common region"
-    message = public_message(engine_says, storage, JOB)
+    message = public_message(engine_says, storage, job)
     assert message == "cameras.json: no two cameras see a common region"
-    assert str(tmp_path) not in public_message(f"{storage.root} is full", storage, JOB)
+    assert str(tmp_path) not in public_message(f"{storage.root} is full", storage, job)
