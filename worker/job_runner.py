@@ -149,7 +149,7 @@ def _train(
             )
             store.add_event(claim.job_id, "record", record.model_dump(mode="json"))
             beat.set_record(record)
-            _write_series(records, run_dir)
+            _write_series(records, run_dir, f"job {claim.job_id}: held-out error")
         elif isinstance(event, StateChange):
             beat.set_phase(event.state)
         return beat.cancel_requested
@@ -222,12 +222,13 @@ def _finite(value: float) -> float | None:
     return value if value == value and abs(value) != float("inf") else None
 
 
-def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
-    """Keep the error-against-time files (JSON, CSV, plot) current while the run goes."""
+def _write_series(records: list[dict[str, Any]], run_dir: Path, title: str) -> None:
+    """Keep the error-against-time files (JSON, CSV, plot titled ``title``) current while the
+    run goes."""
     from sparsesplat.engine.report import write_report
 
     try:
-        write_report(records, run_dir, plot=True)
+        write_report(records, run_dir, plot=True, title=title)
     except Exception:  # a plot is a convenience: never fail a job over it
         log.warning("could not write the metrics series", exc_info=True)
 
