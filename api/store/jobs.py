@@ -379,12 +379,25 @@ class JobStore:
     def requeue_expired(self) -> list[str]:
         """Running jobs whose lease ran out (worker died): back to the queue, or failed after
         ``max_attempts`` starts. Returns the affected ids."""
+        return self._requeue(jobs.c.lease_until < time.time())
+
+    def requeue_of_workers(self, worker_ids: list[str]) -> list[str]:
+        """The running jobs of workers known to be dead (their supervisor saw them exit), at
+        once rather than when their lease runs out: a re-queued job keeps its place (the oldest
+        is claimed first), where waiting out the lease let later jobs start ahead of it."""
+        if not worker_ids:
+            return []
+        return self._requeue(jobs.c.worker_id.in_(worker_ids))
+
+    def _requeue(self, which: sa.ColumnElement[bool]) -> list[str]:
+        """Running jobs matching ``which``: back to the queue, cancelled when a cancel was
+        asked for, or failed after ``max_attempts`` starts. Returns the affected ids."""
         now = time.time()
         touched = []
         with self.engine.begin() as conn:
             rows = conn.execute(
                 sa.select(jobs.c.id, jobs.c.attempts, jobs.c.cancel_requested).where(
-                    jobs.c.state == JobState.running.value, jobs.c.lease_until < now
+                    jobs.c.state == JobState.running.value, which
                 )
             ).all()
             for row in rows:
@@ -407,7 +420,7 @@ class JobStore:
                 updated = conn.execute(
                     jobs.update()
                     .where(jobs.c.id == row.id, jobs.c.state == JobState.running.value)
-                    .where(jobs.c.lease_until < now)
+                    .where(which)
                     .values(**values)
                 )
                 if updated.rowcount == 1:

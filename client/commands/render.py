@@ -104,12 +104,12 @@ def _local(args: argparse.Namespace) -> int:
         # A checkpoint holds the model, not the cameras it was trained from: --view and
         # --orbit need the service's record of the upload.
         given = "--view" if args.view else "--orbit" if args.orbit else "no camera"
-        missing = InvalidInput(
+        refused = InvalidInput(
             f"{given}: a local checkpoint renders from --camera FILE (one camera or a list, "
             "docs/cameras.md); --view and --orbit render a service model (give its id)"
         )
-        print(f"error: {missing}", file=sys.stderr)
-        return exit_code(missing)
+        print(f"error: {refused}", file=sys.stderr)
+        return exit_code(refused)
     argv = [args.target, "-o", args.output]
     if args.camera:
         argv += ["--camera", args.camera]
