@@ -183,6 +183,9 @@ class Job(BaseModel):
     """Held-out images uploaded (scored against renders while training)."""
     has_model: bool = False
     """Whether ``/v1/models/{id}`` can render and export."""
+    disk_bytes: int | None = None
+    """Bytes the job keeps on disk (upload, stored model, exports, metrics), once it has
+    succeeded; None before."""
     warnings: list[str] = Field(default_factory=list)
     """What training found wrong that the upload could not show (e.g. held-out renders that
     stay empty, or a model no better than a constant image: usually poses read the wrong way).
@@ -238,3 +241,5 @@ class ModelInfo(BaseModel):
     is ``GET /v1/jobs/{id}/images/{i}``."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) the model was trained and renders with."""
+    disk_bytes: int | None = None
+    """Bytes the job keeps on disk (upload, stored model, exports, metrics)."""

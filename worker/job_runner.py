@@ -166,6 +166,8 @@ def _train(
         return Outcome(JobState.queued, "worker shut down; the job resumes from its checkpoint")
     if result.stopped:
         return Outcome(JobState.cancelled, "cancelled; the last checkpoint was kept")
+    beat.set_phase("storing")
+    disk_bytes = _keep_only_the_model(storage, claim.job_id, run_dir)
     for warning in result.metrics.get("warnings", []):
         store.add_warning(claim.job_id, public_message(str(warning), storage, claim.job_id))
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
@@ -177,8 +179,38 @@ def _train(
             "n_gaussians": result.n_gaussians,
             "iterations": result.iteration,
             "background": [float(c) for c in trainer.background.tolist()],
+            "disk_bytes": disk_bytes,
         },
     )
+
+
+def _keep_only_the_model(storage: Storage, job_id: str, run_dir: Path) -> int:
+    """After success: the checkpoint becomes the stored model (no optimizer state, colour
+    tables at half precision), the run's scratch files go (cached priors, the budget note,
+    temporary files; the prior pictures stay, a route serves them). Returns the job's bytes
+    on disk, upload included."""
+    from sparsesplat.engine.train.checkpoint import (
+        CHECKPOINT_NAME,
+        load_checkpoint,
+        model_state,
+        save_checkpoint,
+    )
+
+    checkpoint = run_dir / CHECKPOINT_NAME
+    if checkpoint.is_file():
+        save_checkpoint(model_state(load_checkpoint(checkpoint)), checkpoint)
+    pictures = {storage.prior_picture(job_id, 0).parent}
+    for path in sorted(run_dir.rglob("*"), reverse=True):  # files before their folders
+        scratch = (
+            path.name == "budget.json"
+            or path.suffix == ".tmp"
+            or (path.parent in pictures and path.is_file() and not path.name.startswith("view_"))
+        )
+        if path.is_file() and scratch:
+            path.unlink()
+        elif path.is_dir() and path not in pictures and not any(path.iterdir()):
+            path.rmdir()
+    return sum(p.stat().st_size for p in storage.job_dir(job_id).rglob("*") if p.is_file())
 
 
 def _carry_progress(

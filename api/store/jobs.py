@@ -498,6 +498,7 @@ class JobStore:
             n_test_views=row.n_test_views,
             has_model=row.state == JobState.succeeded.value,
             warnings=list(row.warnings or []),
+            disk_bytes=(row.result or {}).get("disk_bytes"),
         )
 
 

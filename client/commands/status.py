@@ -39,6 +39,8 @@ def describe(job: Job) -> str:
         lines.append(
             f"  ran             {fmt_seconds((job.finished_at - job.started_at).total_seconds())}"
         )
+    if job.disk_bytes is not None:
+        lines.append(f"  disk            {job.disk_bytes / 1e6:.1f} MB")
     if job.has_model:
         lines.append(f"  model           sparsesplat render {job.id} ... / export {job.id}")
     return "\n".join(lines)

@@ -64,6 +64,7 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
         exports=exports,
         cameras=cameras,
         background=tuple(result["background"]) if result.get("background") else None,
+        disk_bytes=result.get("disk_bytes"),
     )
 
 
