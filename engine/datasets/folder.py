@@ -24,9 +24,11 @@ from sparsesplat.api.cameras import (
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets.common import (
     BLACK,
+    CommonView,
     check_camera_positions,
     check_image_size,
     check_overlap,
+    common_view,
     covisible_box,
     default_background,
     load_view,
@@ -97,15 +99,19 @@ def _scene_bounds(
     train: list[View],
     train_cams: list[Camera],
     source: str,
+    seen: CommonView | None = None,
 ) -> tuple[float, float]:
     """The scene's near/far: the file's, else the frames' own (nearest near, farthest far),
-    else the user depth maps' range with a margin, else where the optical axes meet."""
+    else the user depth maps' range with a margin, else the depth range of ``seen`` (what all
+    training cameras see), else where the optical axes meet."""
     frame_near = [f.near for f in frames if f.near is not None]
     frame_far = [f.far for f in frames if f.far is not None]
     near = meta.near or (min(frame_near) if frame_near else None)
     far = meta.far or (max(frame_far) if frame_far else None)
     if near is None or far is None:  # estimate only what was not given
         guess_near, guess_far = look_at_bounds(train_cams)
+        if seen is not None:  # an object seen from around it: the depths of what all see
+            guess_near, guess_far = seen.near, seen.far
         depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
         if depths and sum(d.numel() for d in depths) > 0:
             valid = torch.cat(depths)
@@ -137,7 +143,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     frame or top level, e.g. 1000 for millimetre PNGs), object masks as ``View.mask`` (a
     held-out view with one is scored on the object, the DTU protocol). The scene's near/far
     and init box are the file's ``near``/``far``/``init_box`` when it gives them (per-frame
-    bounds shape the box), else estimated (:func:`_scene_bounds`).
+    bounds shape the box), else estimated: for an object photographed from around it, the
+    region all training cameras see and its depth range (:func:`common_view`), else the region
+    two cameras see between the look-at bounds (:func:`_scene_bounds`, :func:`covisible_box`).
 
     Images with an alpha channel are composited on white (the scene background), without
     alpha the background is black; the trainer re-composites on its configured background."""
@@ -181,7 +189,14 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
         old, new = torch.tensor(BLACK), torch.tensor(background)
         train = [recomposite(v, old, new) for v in train]
         test = [recomposite(v, old, new) for v in test]
-    near, far = _scene_bounds(meta, [frames[i] for i in all_idx], train, train_cams, str(path))
+    given: list[object] = [meta.near, meta.far, meta.init_box]
+    given += [v for f in frames for v in (f.near, f.far, f.depth)]
+    # No bounds at all (the documented recipe for Blender-like uploads): frame the scene by
+    # what every training camera sees rather than by the wide look-at guess.
+    seen = common_view(train_cams) if all(v is None for v in given) else None
+    near, far = _scene_bounds(
+        meta, [frames[i] for i in all_idx], train, train_cams, str(path), seen
+    )
     train_near, train_far = _view_bounds([frames[i] for i in train_idx], near, far, str(path))
     alone = check_overlap(train_cams, train_names, near, far, str(path))
     if alone:
@@ -190,7 +205,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             path,
             ", ".join(alone),
         )
-    box = meta.init_box or covisible_box(train_cams, train_near, train_far)
+    box = meta.init_box or (
+        seen.box if seen is not None else covisible_box(train_cams, train_near, train_far)
+    )
     return Scene(
         name=root.name,
         format="folder",
