@@ -243,3 +243,6 @@ class ModelInfo(BaseModel):
     """Background colour (RGB in [0, 1]) the model was trained and renders with."""
     disk_bytes: int | None = None
     """Bytes the job keeps on disk (upload, stored model, exports, metrics)."""
+    depth_priors: int = 0
+    """Training views whose depth prior ``GET /v1/jobs/{id}/priors/{k}`` serves as a picture
+    (k = 0 .. depth_priors - 1; 0 when the job used no prior)."""

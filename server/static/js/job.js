@@ -230,7 +230,7 @@ export function mount(container, { jobId }) {
           photoNote,
           " With each, its depth prior (GET /v1/jobs/{id}/priors/{k}, near = bright) once the worker has computed it.",
         ),
-        el("div.view-grid", {}, train.map((c, k) => viewCard(c, session, k))),
+        el("div.view-grid", {}, train.map((c, k) => viewCard(c, session, k, model.depth_priors || 0))),
       ),
     );
   }
@@ -249,7 +249,7 @@ export function mount(container, { jobId }) {
     return img;
   }
 
-  function viewCard(camera, session, trainIndex) {
+  function viewCard(camera, session, trainIndex, depthPriors = 0) {
     const file = session && session.files[camera.index];
     const render = el("img.render", { alt: `render at camera ${camera.index}`, width: camera.width, height: camera.height, dataset: { cameraIndex: String(camera.index), split: camera.split } });
     const status = el("span.muted", {}, "rendering…");
@@ -261,6 +261,8 @@ export function mount(container, { jobId }) {
     const prior =
       trainIndex === undefined
         ? null
+        : trainIndex >= depthPriors
+        ? el("span.muted", {}, "no depth prior (the preset uses none)")
         : fetchedImage("img.prior", { alt: `depth prior ${trainIndex}`, ...size }, `/v1/jobs/${jobId}/priors/${trainIndex}`, "no depth prior (the preset uses none)");
     queue
       .push(() => renderUrl(jobId, pinhole(camera), urls))
