@@ -259,12 +259,16 @@ def covisible_box(
     return ((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
 
 
+COMMON_VIEW_QUANTILE = 0.10
+"""The common-view box spans these lower/upper quantiles of the points all cameras see."""
+
+
 @dataclasses.dataclass(frozen=True)
 class CommonView:
     """The region every training camera sees, for uploads that give no bounds."""
 
     box: Box
-    """Box around the points all cameras see (2nd-98th percentiles per axis)."""
+    """Box around the points all cameras see (:data:`COMMON_VIEW_QUANTILE` per axis)."""
     near: float
     """Nearest depth of the box's corners from any camera (with a 10% margin)."""
     far: float
@@ -289,8 +293,11 @@ def common_view(cameras: Sequence[Camera], samples: int = 8192, seed: int = 0) -
     pts = torch.cat([p[s >= n] for p, s in zip(points, seen_by, strict=True)])
     if pts.shape[0] < 100:
         return None
-    lo = torch.quantile(pts, 0.02, dim=0)
-    hi = torch.quantile(pts, 0.98, dim=0)
+    # The 10th-90th percentiles: the intersection of the cones is wider than the object at
+    # its tips; on mic's three views this gives the [-1, 1] cube within 0.1 (2nd-98th: a box
+    # 2.6 x 2.8 x 3.3 that trained 1.6 dB worse at 300 iterations).
+    lo = torch.quantile(pts, COMMON_VIEW_QUANTILE, dim=0)
+    hi = torch.quantile(pts, 1.0 - COMMON_VIEW_QUANTILE, dim=0)
     corners = torch.cartesian_prod(*[torch.stack([lo[i], hi[i]]) for i in range(3)])
     depths = torch.cat(
         [

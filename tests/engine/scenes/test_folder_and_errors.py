@@ -239,8 +239,8 @@ def test_an_object_upload_without_bounds_is_framed_by_what_every_camera_sees(
     seen = common_view(cameras)
     assert seen is not None
     low, high = np.array(seen.box)
-    assert np.all(low > -2.2) and np.all(high < 2.2) and np.all(low < -0.8) and np.all(high > 0.8)
-    assert 1.2 < seen.near < 2.8 and 5.0 < seen.far < 8.0
+    assert np.all(low > -1.5) and np.all(high < 1.5) and np.all(low < -0.5) and np.all(high > 0.5)
+    assert 1.5 < seen.near < 2.8 and 5.0 < seen.far < 7.0
     near, far = look_at_bounds(cameras)
     wide = np.array(covisible_box(cameras, [near] * 3, [far] * 3))
     assert np.prod(high - low) < 0.8 * np.prod(wide[1] - wide[0])
