@@ -84,7 +84,10 @@ def test_exact_mode_equals_the_trainers_evaluation_render(trained: Any) -> None:
     scene, run, _ = trained
     model = load_model(run)
     raster = lambda *a: rasterize(  # noqa: E731
-        *a, near=model.raster_near, eps2d=model.config.raster.eps2d, backend=model.config.raster.backend
+        *a,
+        near=model.raster_near,
+        eps2d=model.config.raster.eps2d,
+        backend=model.config.raster.backend,
     )
     geo = model.color.geo_features(model.gaussians)
     for view in scene.test:
