@@ -216,6 +216,13 @@ class Job(BaseModel):
     """Held-out images uploaded (scored against renders while training)."""
     has_model: bool = False
     """Whether ``/v1/models/{id}`` can render and export."""
+    disk_bytes: int | None = None
+    """Bytes the job keeps on disk (upload, stored model, exports, metrics), once it has
+    succeeded; None before."""
+    warnings: list[str] = Field(default_factory=list)
+    """What training found wrong that the upload could not show (e.g. held-out renders that
+    stay empty, or a model no better than a constant image: usually poses read the wrong way).
+    A job can succeed with warnings; each one is also a ``warning`` event."""
 
 
 class JobPage(BaseModel):
@@ -227,9 +234,10 @@ class JobPage(BaseModel):
     """Pass as ``cursor`` for the next page; None on the last page."""
 
 
-EventType = Literal["state", "progress", "record"]
+EventType = Literal["state", "progress", "record", "warning"]
 """``state``: the job changed state; ``progress``: iteration/phase update; ``record``: a
-held-out error record."""
+held-out error record; ``warning``: something training found wrong (``{message}``, also in
+the job's ``warnings``)."""
 
 
 class Event(BaseModel):
@@ -244,7 +252,8 @@ class Event(BaseModel):
     time: datetime
     """When it was stored (UTC)."""
     data: dict[str, Any]
-    """``state``: {state, message}; ``progress``: a Progress; ``record``: a Record."""
+    """``state``: {state, message}; ``progress``: a Progress; ``record``: a Record;
+    ``warning``: {message}."""
 
 
 class ModelInfo(BaseModel):
@@ -267,3 +276,8 @@ class ModelInfo(BaseModel):
     trained in); the i-th one's image is ``GET /v1/jobs/{id}/images/{i}``."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) the model was trained and renders with."""
+    disk_bytes: int | None = None
+    """Bytes the job keeps on disk (upload, stored model, exports, metrics)."""
+    depth_priors: int = 0
+    """Training views whose depth prior ``GET /v1/jobs/{id}/priors/{k}`` serves as a picture
+    (k = 0 .. depth_priors - 1; 0 when the job used no prior)."""

@@ -4,7 +4,7 @@ view's poses and frames."""
 from __future__ import annotations
 
 import struct
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -35,6 +35,13 @@ MEDIA_TYPES: dict[str, str] = {
     "zip": "application/zip",
 }
 """Content type of each output; a camera path answers with a ZIP of numbered frames."""
+
+
+RENDER_WARNING_HEADER = "X-Render-Warning"
+"""Response header present when a render sees (nearly) nothing of the model: its value says
+so and what to check. ``X-Coverage`` always gives each camera's mean alpha (comma-separated)."""
+EMPTY_RENDER_COVERAGE = 0.01
+"""A render whose mean alpha is below this sees (nearly) nothing of the model."""
 
 
 class RenderRequest(BaseModel):
@@ -74,6 +81,23 @@ class RenderRequest(BaseModel):
     """JPEG/WebP quality."""
     mode: RenderMode = DEFAULT_RENDER_MODE
     """``neural`` (exact) or ``baked`` (the SH of the export)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _camera_not_wrapped(cls, data: Any) -> Any:
+        # A bare camera posted as the body would otherwise answer one 'extra input' line per
+        # camera field, without saying what the body should look like.
+        if isinstance(data, dict):
+            stray = [
+                k for k in data if k in PinholeCamera.model_fields and k not in cls.model_fields
+            ]
+            if stray:
+                raise ValueError(
+                    f"camera field(s) {', '.join(repr(k) for k in stray)} at the top level of "
+                    'the body: send {"camera": {...}} (one camera) or {"path": [{...}, ...]} '
+                    "(a camera path), with 'output' and 'downscale' beside it"
+                )
+        return data
 
     @model_validator(mode="after")
     def _one_of(self) -> RenderRequest:

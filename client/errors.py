@@ -64,6 +64,26 @@ class JobFailed(SparsesplatError):
         self.job = job
 
 
+class JobWarning(UserWarning):
+    """Issued (``warnings.warn``) when a waited-for job ends with warnings on its record:
+    training found something wrong the upload could not show, e.g. held-out renders that stay
+    empty (usually poses read the wrong way). The job may still have succeeded."""
+
+
+def warn_about(job: Job) -> None:
+    """One :class:`JobWarning` per warning on ``job``'s record."""
+    import warnings
+
+    for message in job.warnings:
+        warnings.warn(f"job {job.id}: {message}", JobWarning, stacklevel=3)
+
+
+class RenderWarning(UserWarning):
+    """Issued when a render sees (nearly) nothing of the model (the service's
+    ``X-Render-Warning`` header): the camera is likely read the wrong way, far away or
+    facing away from the scene."""
+
+
 class APIError(SparsesplatError):
     """The server answered with an error status; ``code`` and ``message`` come from its body."""
 

@@ -25,6 +25,7 @@ import platform
 import shutil
 import sys
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -83,6 +84,36 @@ def _cpu_model() -> str:
         return "".join(sorted(set(lines)))
     except OSError:
         return platform.processor()
+
+
+BUILD_NOTICE_EVERY_S = 30.0
+"""While a first build compiles, a log line this often says it is still going."""
+
+
+@contextlib.contextmanager
+def _building_notice(description: str, build_dir: Path, fresh: bool) -> Iterator[None]:
+    """Say a first build has started (it takes minutes: ~2.5 on 2 cores) and, every
+    :data:`BUILD_NOTICE_EVERY_S`, that it still runs; a cached load says nothing."""
+    if not fresh:
+        yield
+        return
+    log.warning("building the %s (first use only; a few minutes, about 2.5 on 2 cores; "
+                "cached in %s)", description, build_dir)  # fmt: skip
+    started = time.monotonic()
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(BUILD_NOTICE_EVERY_S):
+            log.warning("still building the %s (%.0f s so far)", description,
+                        time.monotonic() - started)  # fmt: skip
+
+    thread = threading.Thread(target=tick, name="build-notice", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        log.warning("built the %s in %.0f s", description, time.monotonic() - started)
 
 
 def build_key(
@@ -208,16 +239,18 @@ class NativeExtension:
                         log.warning("removing a stale build lock left by a killed process: %s",
                                     stale)  # fmt: skip
                         stale.unlink(missing_ok=True)
+                    fresh = not any(build_dir.glob(f"{name}*.so"))
                     # Copies: the builder appends its own flags to the lists it is given.
-                    mod = cpp_extension.load(
-                        name=name,
-                        sources=[str(src / f) for f in self.sources],
-                        extra_cflags=list(self.cflags),
-                        extra_ldflags=list(LDFLAGS),
-                        extra_include_paths=[str(src)],
-                        build_directory=str(build_dir),
-                        verbose=False,
-                    )
+                    with _building_notice(self.description, build_dir, fresh):
+                        mod = cpp_extension.load(
+                            name=name,
+                            sources=[str(src / f) for f in self.sources],
+                            extra_cflags=list(self.cflags),
+                            extra_ldflags=list(LDFLAGS),
+                            extra_include_paths=[str(src)],
+                            build_directory=str(build_dir),
+                            verbose=False,
+                        )
             except Exception as exc:  # the builder raises RuntimeError/CalledProcessError/OSError
                 raise self.on_failure(
                     f"building the {self.description} from {self.source_dir} failed "

@@ -92,7 +92,7 @@ def plot_report(records: Sequence[dict[str, Any]], path: Path, title: str | None
         ax.plot(xs, ys, marker="o", markersize=3)
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-    axes[-1].set_xlabel("wall-clock seconds")
+    axes[-1].set_xlabel("training seconds (evaluation and checkpoints excluded)")
     if title:
         axes[0].set_title(title)
     fig.tight_layout()

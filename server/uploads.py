@@ -36,6 +36,7 @@ from starlette.datastructures import FormData, UploadFile
 
 from sparsesplat.api.cameras import CamerasFile, Split
 from sparsesplat.api.jobs import JobSpec
+from sparsesplat.api.pose_check import PoseReadingError, check_pose_reading
 from sparsesplat.api.settings import Settings
 from sparsesplat.server.errors import ServiceError, invalid
 
@@ -64,6 +65,8 @@ def pydantic_message(exc: ValidationError, prefix: str) -> str:
     for err in exc.errors():
         loc = ".".join(str(p) for p in err.get("loc", ()))
         msg = str(err.get("msg", "")).removeprefix("Value error, ")
+        if err.get("type") == "enum":  # say what was sent, as the schema's own messages do
+            msg = f"{msg}, got {err.get('input')!r}"
         parts.append(f"{prefix}{'.' + loc if loc else ''}: {msg}")
     return "; ".join(parts)
 
@@ -148,10 +151,22 @@ def _image_info(data: bytes, name: str, settings: Settings) -> tuple[str, int, i
     except Image.DecompressionBombError as exc:
         raise ServiceError(413, "image_too_large", f"{name}: {exc}") from exc
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        # Pillow's message names its in-memory buffer ('<_io.BytesIO object at 0x...>'), not
+        # the file: say what it could not read in our own words.
+        reason = _unreadable_reason(exc)
         raise invalid(
-            "corrupt_image", f"{name}: not a readable PNG/JPEG/WebP image ({exc})"
+            "corrupt_image", f"{name}: not a readable PNG/JPEG/WebP image ({reason})"
         ) from exc
     return IMAGE_FORMATS[fmt], width, height
+
+
+def _unreadable_reason(exc: Exception) -> str:
+    """Why Pillow could not read a file, without its message (which names the buffer)."""
+    from PIL import UnidentifiedImageError
+
+    if isinstance(exc, UnidentifiedImageError):
+        return "its format is not recognised"
+    return "truncated or corrupt"
 
 
 def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
@@ -184,7 +199,9 @@ def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
                 )
             image.load()
     except (UnidentifiedImageError, OSError) as exc:
-        raise invalid("invalid_depth", f"{name}: unreadable depth map ({exc})") from exc
+        raise invalid(
+            "invalid_depth", f"{name}: unreadable depth map ({_unreadable_reason(exc)})"
+        ) from exc
     return "png"
 
 
@@ -218,8 +235,8 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
     if unknown:
         raise invalid(
             "invalid_upload",
-            f"unknown form part(s) {', '.join(unknown)}; "
-            f"expected {', '.join(sorted(_FORM_FIELDS))}",
+            f"unknown form part(s) {', '.join(repr(u) for u in unknown)}; "
+            f"expected {', '.join(repr(f) for f in sorted(_FORM_FIELDS))}",
         )
     spec = parse_spec(form)
     if form.get("cameras") is None and form.getlist("images"):
@@ -229,6 +246,10 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
     if form.get("intrinsics") is not None:
         raise invalid("invalid_upload", "'intrinsics' is for photos without a cameras.json")
     cameras = parse_cameras(form)
+    try:
+        check_pose_reading(cameras)
+    except PoseReadingError as exc:
+        raise invalid("implausible_poses", str(exc)) from exc
     images = _files(form, "images")
     depths = _files(form, "depths")
     masks = _files(form, "masks")

@@ -45,11 +45,16 @@ def main(argv: list[str] | None = None) -> int:
 
         serve_renders(settings)
         return 0
-    from sparsesplat.worker.supervisor import Supervisor
+    from sparsesplat.worker.supervisor import Supervisor, requeue_jobs_of_dead_workers
 
     train = settings.workers if args.train is None else args.train
     render = settings.render_workers if args.render is None else args.render
-    return Supervisor(train, render).run()
+    on_exit = None
+    if settings.queue != QueueBackend.celery and settings.database_url is not None:
+        # Embedded queue: the supervisor re-queues a dead worker's job at once. (With Celery
+        # the API re-dispatches expired jobs; a job queued without a message would wait.)
+        on_exit = requeue_jobs_of_dead_workers(settings.database_url, settings.max_attempts)
+    return Supervisor(train, render, on_exit).run()
 
 
 def run_celery_node(settings: Settings, concurrency: int = 1) -> int:

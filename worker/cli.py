@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from sparsesplat.api.logs import configure_logging
     from sparsesplat.api.settings import QueueBackend, load_settings
     from sparsesplat.api.store.database import make_engine, migrate
-    from sparsesplat.worker.supervisor import Supervisor
+    from sparsesplat.worker.supervisor import Supervisor, requeue_jobs_of_dead_workers
 
     settings = load_settings()
     configure_logging(settings.log_level, json_lines=settings.log_json)
@@ -48,4 +48,9 @@ def run(args: argparse.Namespace) -> int:
     render = settings.render_workers if args.render is None else args.render
     if args.render is None and settings.queue == QueueBackend.celery:
         render = 0
-    return Supervisor(train, render).run()
+    on_exit = None
+    if settings.queue != QueueBackend.celery and settings.database_url is not None:
+        # Embedded queue: the supervisor re-queues a dead worker's job at once. (With Celery
+        # the API re-dispatches expired jobs; a job queued without a message would wait.)
+        on_exit = requeue_jobs_of_dead_workers(settings.database_url, settings.max_attempts)
+    return Supervisor(train, render, on_exit).run()

@@ -94,7 +94,7 @@ def run_job(
     try:
         return _train(claim, spec, store, storage, settings, run_dir, beat)
     except EngineError as exc:
-        return Outcome(JobState.failed, str(exc))
+        return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
     except MemoryError:
         return Outcome(JobState.failed, "ran out of memory: try smaller images or fewer Gaussians")
     finally:
@@ -124,6 +124,7 @@ def _train(
         if plan.reason is not None:
             log.info("preset chosen", extra={"preset": plan.config.preset, "reason": plan.reason})
         beat.set_preset(plan.config.preset, plan.reason)
+        _carry_progress(store, claim.job_id, beat, plan.config.preset, plan.reason)
         if plan.config.uses_depth:
             beat.set_phase("depth prior")
 
@@ -142,7 +143,7 @@ def _train(
             )
             store.add_event(claim.job_id, "record", record.model_dump(mode="json"))
             beat.set_record(record)
-            _write_series(records, run_dir)
+            _write_series(records, run_dir, f"job {claim.job_id}: held-out error")
         elif isinstance(event, StateChange):
             beat.set_phase(event.state)
         return beat.cancel_requested
@@ -173,6 +174,10 @@ def _train(
         return Outcome(JobState.queued, "worker shut down; the job resumes from its checkpoint")
     if result.stopped:
         return Outcome(JobState.cancelled, "cancelled; the last checkpoint was kept")
+    beat.set_phase("storing")
+    disk_bytes = _keep_only_the_model(storage, claim.job_id, run_dir)
+    for warning in result.metrics.get("warnings", []):
+        store.add_warning(claim.job_id, public_message(str(warning), storage, claim.job_id))
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
     return Outcome(
         JobState.succeeded,
@@ -183,8 +188,60 @@ def _train(
             "n_gaussians": result.n_gaussians,
             "iterations": result.iteration,
             "background": [float(c) for c in trainer.background.tolist()],
+            "disk_bytes": disk_bytes,
         },
     )
+
+
+def _keep_only_the_model(storage: Storage, job_id: str, run_dir: Path) -> int:
+    """After success: the checkpoint becomes the stored model (no optimizer state, colour
+    tables at half precision), the run's scratch files go (cached priors, temporary
+    files; the prior pictures stay, a route serves them). Returns the job's bytes
+    on disk, upload included."""
+    from sparsesplat.engine.train.checkpoint import (
+        CHECKPOINT_NAME,
+        load_checkpoint,
+        model_state,
+        save_checkpoint,
+    )
+
+    checkpoint = run_dir / CHECKPOINT_NAME
+    if checkpoint.is_file():
+        save_checkpoint(model_state(load_checkpoint(checkpoint)), checkpoint)
+    pictures = {storage.prior_picture(job_id, 0).parent}
+    for path in sorted(run_dir.rglob("*"), reverse=True):  # files before their folders
+        scratch = path.suffix == ".tmp" or (
+            path.parent in pictures and path.is_file() and not path.name.startswith("view_")
+        )
+        if path.is_file() and scratch:
+            path.unlink()
+        elif path.is_dir() and path not in pictures and not any(path.iterdir()):
+            path.rmdir()
+    return sum(p.stat().st_size for p in storage.job_dir(job_id).rglob("*") if p.is_file())
+
+
+def _carry_progress(
+    store: JobStore, job_id: str, beat: JobHeartbeat, preset: str, reason: str | None
+) -> None:
+    """A resumed attempt starts from what the last one published: its latest held-out record
+    and why its preset was chosen (otherwise the progress reads null until the next record)."""
+    job = store.get(job_id)
+    previous = job.progress if job is not None else None
+    if previous is None:
+        return
+    if previous.last_record is not None:
+        beat.set_record(previous.last_record)
+    if reason is None and previous.preset == preset and previous.preset_reason is not None:
+        beat.set_preset(preset, previous.preset_reason)
+
+
+def public_message(message: str, storage: Storage, job_id: str) -> str:
+    """``message`` with the server's folders taken out: the engine names files by their path,
+    and a user reads them relative to their upload (``cameras.json``, ``images/000.png``)."""
+    for folder in (storage.upload_dir(job_id), storage.run_dir(job_id), storage.root):
+        for form in {str(folder), str(folder.resolve())}:
+            message = message.replace(form + "/", "").replace(form, "the job's folder")
+    return message
 
 
 def _write_prior_pictures(priors: list[Any], pictures: list[Path]) -> None:
@@ -204,12 +261,13 @@ def _finite(value: float) -> float | None:
     return value if value == value and abs(value) != float("inf") else None
 
 
-def _write_series(records: list[dict[str, Any]], run_dir: Path) -> None:
-    """Keep the error-against-time files (JSON, CSV, plot) current while the run goes."""
+def _write_series(records: list[dict[str, Any]], run_dir: Path, title: str) -> None:
+    """Keep the error-against-time files (JSON, CSV, plot titled ``title``) current while the
+    run goes."""
     from sparsesplat.engine.report import write_report
 
     try:
-        write_report(records, run_dir, plot=True)
+        write_report(records, run_dir, plot=True, title=title)
     except Exception:  # a plot is a convenience: never fail a job over it
         log.warning("could not write the metrics series", exc_info=True)
 

@@ -23,7 +23,12 @@ from collections import OrderedDict
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from sparsesplat.api.renders import MEDIA_TYPES, RenderRequest
+from sparsesplat.api.renders import (
+    EMPTY_RENDER_COVERAGE,
+    MEDIA_TYPES,
+    RENDER_WARNING_HEADER,
+    RenderRequest,
+)
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
@@ -113,6 +118,7 @@ class Renderer:
 
         seconds = 0.0
         frames = []
+        coverages = []
         for camera in request.cameras:
             # Only the render holds the lock: encoding (Pillow releases the GIL) overlaps the
             # next request's render when several wait.
@@ -123,10 +129,24 @@ class Renderer:
                 seconds += time.perf_counter() - started
             started = time.perf_counter()
             frames.append(_encode_render(out, request))
+            coverages.append(float(out.alpha.mean()))
             seconds += time.perf_counter() - started
         # The worker's own share of the latency (model lookup, render, encoding; not the wait
         # for the lock), so that a client can tell it from the hops and the queueing.
         headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
+        headers["X-Coverage"] = ",".join(f"{coverage:.4f}" for coverage in coverages)
+        empty = [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
+        if empty:
+            which = (
+                "the camera sees"
+                if request.path is None
+                else (f"{len(empty)} of {len(frames)} cameras (from {empty[0]}) see")
+            )
+            headers[RENDER_WARNING_HEADER] = (
+                f"{which} nothing of the model (under {EMPTY_RENDER_COVERAGE:.0%} of pixels "
+                "covered): check the camera's 'convention' and 'pose', and that it is near "
+                "the training cameras and faces the scene"
+            )
         if request.output == "depth16":
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:

@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import FrameType
 
@@ -53,11 +54,15 @@ class _Slot:
 class Supervisor:
     """Starts and restarts worker processes until stopped."""
 
-    def __init__(self, train: int, render: int) -> None:
-        """``train`` training workers and ``render`` render workers."""
+    def __init__(
+        self, train: int, render: int, on_exit: Callable[[str, int], None] | None = None
+    ) -> None:
+        """``train`` training workers and ``render`` render workers; ``on_exit(kind, pid)``
+        runs when a worker process has exited, before it is replaced."""
         self.slots = [_Slot("train") for _ in range(train)] + [
             _Slot("render") for _ in range(render)
         ]
+        self.on_exit = on_exit
         self._stopping = False
 
     def run(self) -> int:
@@ -88,6 +93,11 @@ class Supervisor:
             slot.next_start = now + delay
             log.warning("worker exited; restarting",
                         extra={"kind": slot.kind, "code": code, "restart_in_s": delay})  # fmt: skip
+            if self.on_exit is not None:
+                try:
+                    self.on_exit(slot.kind, slot.process.pid)
+                except Exception:  # a cleanup that failed must not stop the supervision
+                    log.warning("handling a worker's exit failed", exc_info=True)
             slot.process = None
         if now >= slot.next_start:
             slot.process = subprocess.Popen(
@@ -108,3 +118,28 @@ class Supervisor:
                 process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 process.kill()
+
+
+def requeue_jobs_of_dead_workers(
+    database_url: str, max_attempts: int
+) -> Callable[[str, int], None]:
+    """An ``on_exit`` for :class:`Supervisor`: the job a dead training worker held goes back to
+    the queue at once (not when its lease expires), so it resumes before later jobs."""
+    from sparsesplat.api.store.database import make_engine
+    from sparsesplat.api.store.jobs import JobStore
+    from sparsesplat.api.store.workers import WorkerRegistry
+
+    engine = make_engine(database_url)
+    store, registry = JobStore(engine, max_attempts), WorkerRegistry(engine)
+
+    def on_exit(kind: str, pid: int) -> None:
+        if kind != "train":
+            return
+        dead = registry.ids_of_process(pid)
+        requeued = store.requeue_of_workers(dead)
+        for worker_id in dead:
+            registry.unregister(worker_id)
+        if requeued:
+            log.warning("re-queued the job(s) of a dead worker", extra={"jobs": requeued})
+
+    return on_exit

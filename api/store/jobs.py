@@ -316,6 +316,22 @@ class JobStore:
         with self.engine.begin() as conn:
             return self._append(conn, job_id, type_, data)
 
+    def add_warning(self, job_id: str, message: str) -> int:
+        """Append ``message`` to the job's warnings and store it as a ``warning`` event (one
+        transaction); returns the event's sequence number. A message already there is not
+        added twice (a resumed run may find the same problem again)."""
+        with self.engine.begin() as conn:
+            current = conn.execute(
+                sa.select(jobs.c.warnings).where(jobs.c.id == job_id)
+            ).scalar_one_or_none()
+            warnings = list(current or [])
+            if message in warnings:
+                return 0
+            conn.execute(
+                jobs.update().where(jobs.c.id == job_id).values(warnings=[*warnings, message])
+            )
+            return self._append(conn, job_id, "warning", {"message": message})
+
     def finish(
         self,
         job_id: str,
@@ -363,12 +379,25 @@ class JobStore:
     def requeue_expired(self) -> list[str]:
         """Running jobs whose lease ran out (worker died): back to the queue, or failed after
         ``max_attempts`` starts. Returns the affected ids."""
+        return self._requeue(jobs.c.lease_until < time.time())
+
+    def requeue_of_workers(self, worker_ids: list[str]) -> list[str]:
+        """The running jobs of workers known to be dead (their supervisor saw them exit), at
+        once rather than when their lease runs out: a re-queued job keeps its place (the oldest
+        is claimed first), where waiting out the lease let later jobs start ahead of it."""
+        if not worker_ids:
+            return []
+        return self._requeue(jobs.c.worker_id.in_(worker_ids))
+
+    def _requeue(self, which: sa.ColumnElement[bool]) -> list[str]:
+        """Running jobs matching ``which``: back to the queue, cancelled when a cancel was
+        asked for, or failed after ``max_attempts`` starts. Returns the affected ids."""
         now = time.time()
         touched = []
         with self.engine.begin() as conn:
             rows = conn.execute(
                 sa.select(jobs.c.id, jobs.c.attempts, jobs.c.cancel_requested).where(
-                    jobs.c.state == JobState.running.value, jobs.c.lease_until < now
+                    jobs.c.state == JobState.running.value, which
                 )
             ).all()
             for row in rows:
@@ -391,7 +420,7 @@ class JobStore:
                 updated = conn.execute(
                     jobs.update()
                     .where(jobs.c.id == row.id, jobs.c.state == JobState.running.value)
-                    .where(jobs.c.lease_until < now)
+                    .where(which)
                     .values(**values)
                 )
                 if updated.rowcount == 1:
@@ -468,6 +497,8 @@ class JobStore:
             n_train_views=row.n_train_views,
             n_test_views=row.n_test_views,
             has_model=row.state == JobState.succeeded.value,
+            warnings=list(row.warnings or []),
+            disk_bytes=(row.result or {}).get("disk_bytes"),
         )
 
 

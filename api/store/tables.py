@@ -24,6 +24,7 @@ jobs = sa.Table(
     sa.Column("error", sa.Text),
     sa.Column("progress", sa.JSON),
     sa.Column("result", sa.JSON),
+    sa.Column("warnings", sa.JSON),  # list of str; NULL: none (migration 0002)
     sa.Column("idempotency_key", sa.String(200)),
     sa.Column("n_train_views", sa.Integer, nullable=False),
     sa.Column("n_test_views", sa.Integer, nullable=False),

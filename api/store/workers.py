@@ -74,6 +74,17 @@ class WorkerRegistry:
         with self.engine.begin() as conn:
             conn.execute(workers.delete().where(workers.c.id == worker_id))
 
+    def ids_of_process(self, pid: int, host: str | None = None) -> list[str]:
+        """Registered workers of process ``pid`` on ``host`` (default: this machine)."""
+        with self.engine.begin() as conn:
+            return list(
+                conn.execute(
+                    sa.select(workers.c.id).where(
+                        workers.c.pid == pid, workers.c.host == (host or socket.gethostname())
+                    )
+                ).scalars()
+            )
+
     def live(self, kind: WorkerKind | None = None, max_age_s: float = 30.0) -> list[WorkerInfo]:
         """Workers whose last heartbeat is at most ``max_age_s`` old (stale rows are removed)."""
         now = time.time()

@@ -15,6 +15,7 @@ import argparse
 import importlib
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.names import VIDEO_SUFFIXES
 from sparsesplat.api.renders import RenderOutput
 from sparsesplat.client.commands.common import add_connection, client, guarded, json_argument
-from sparsesplat.client.errors import InvalidInput, MissingExtra, exit_code
+from sparsesplat.client.errors import InvalidInput, MissingExtra, RenderWarning, exit_code
 
 LOCAL_COMMAND = "sparsesplat.engine.commands.render"
 """The engine's own render command, used for local checkpoints."""
@@ -33,9 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", metavar="MODEL|CHECKPOINT", help="model id or local checkpoint")
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--camera", help="camera JSON file or text (one camera or a list)")
-    which.add_argument("--orbit", type=int, metavar="N", help="N cameras orbiting the model")
     which.add_argument(
-        "--view", metavar="SPLIT:I", help="the I-th uploaded camera of SPLIT (e.g. test:0)"
+        "--orbit", type=int, metavar="N", help="N cameras orbiting the model (service models)"
+    )
+    which.add_argument(
+        "--view",
+        metavar="SPLIT:I",
+        help="the I-th uploaded camera of SPLIT, e.g. test:0 (service models: a local "
+        "checkpoint does not hold its cameras; give it --camera)",
     )
     parser.add_argument("-o", "--output", required=True, help="image, folder or video file")
     parser.add_argument(
@@ -68,14 +74,32 @@ def _cameras(args: argparse.Namespace, model: Any) -> list[PinholeCamera | dict[
         split, _, index = args.view.partition(":")
         views = model.cameras(split or "test")
         try:
-            return [views[int(index or 0)]]
+            number = int(index or 0)
+            if number < 0:
+                raise IndexError(number)
+            return [views[number]]
         except (ValueError, IndexError):
-            raise InvalidInput(f"--view {args.view}: {len(views)} {split} cameras") from None
+            valid = (
+                f"give {split}:0 to {split}:{len(views) - 1}" if views else "none to choose from"
+            )
+            raise InvalidInput(
+                f"--view {args.view}: the model has {len(views)} {split} camera(s); {valid}"
+            ) from None
     raise InvalidInput("give --camera FILE, --orbit N or --view SPLIT:I")
 
 
 def _local(args: argparse.Namespace) -> int:
     """Hand a local checkpoint to the engine's render command."""
+    if not args.camera:
+        # A checkpoint holds the model, not the cameras it was trained from: --view and
+        # --orbit need the service's record of the upload.
+        given = "--view" if args.view else "--orbit" if args.orbit else "no camera"
+        refused = InvalidInput(
+            f"{given}: a local checkpoint renders from --camera FILE (one camera or a list, "
+            "docs/cameras.md); --view and --orbit render a service model (give its id)"
+        )
+        print(f"error: {refused}", file=sys.stderr)
+        return exit_code(refused)
     argv = [args.target, "-o", args.output]
     if args.camera:
         argv += ["--camera", args.camera]
@@ -100,27 +124,40 @@ def run(args: argparse.Namespace) -> int:
         return _local(args)
 
     def body() -> int:
-        out = Path(args.output)
-        with client(args) as c:
-            model = c.model(args.target)
-            cameras = _cameras(args, model)
-            if out.suffix.lower() in VIDEO_SUFFIXES:
-                written = [model.video(cameras, out, fps=args.fps, downscale=args.downscale)]
-            elif len(cameras) > 1 or (args.orbit and not out.suffix):
-                kind: RenderOutput = args.kind or "png"
-                written = model.render_path_to(cameras, out, kind, downscale=args.downscale)
-            elif out.suffix:
-                written = [
-                    model.render_to(cameras[0], out, output=args.kind, downscale=args.downscale)
-                ]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RenderWarning)
+            code = render(args)
+        for warning in caught:
+            if issubclass(warning.category, RenderWarning):
+                print(f"warning: {warning.message}", file=sys.stderr)
             else:
-                written = model.render_path_to(
-                    cameras, out, args.kind or "png", downscale=args.downscale
+                warnings.warn_explicit(
+                    warning.message, warning.category, warning.filename, warning.lineno
                 )
-        if args.json:
-            print(json.dumps({"model": args.target, "files": [str(p) for p in written]}))
-        else:
-            print("\n".join(str(p) for p in written))
-        return 0
+        return code
 
     return guarded(args, body)
+
+
+def render(args: argparse.Namespace) -> int:
+    """Render on the service and print the files written."""
+    out = Path(args.output)
+    with client(args) as c:
+        model = c.model(args.target)
+        cameras = _cameras(args, model)
+        if out.suffix.lower() in VIDEO_SUFFIXES:
+            written = [model.video(cameras, out, fps=args.fps, downscale=args.downscale)]
+        elif len(cameras) > 1 or (args.orbit and not out.suffix):
+            kind: RenderOutput = args.kind or "png"
+            written = model.render_path_to(cameras, out, kind, downscale=args.downscale)
+        elif out.suffix:
+            written = [model.render_to(cameras[0], out, output=args.kind, downscale=args.downscale)]
+        else:
+            written = model.render_path_to(
+                cameras, out, args.kind or "png", downscale=args.downscale
+            )
+    if args.json:
+        print(json.dumps({"model": args.target, "files": [str(p) for p in written]}))
+    else:
+        print("\n".join(str(p) for p in written))
+    return 0

@@ -34,6 +34,13 @@ def describe(job: Job) -> str:
     lines.append(f"  views           {job.n_train_views} train + {job.n_test_views} held out")
     if job.error:
         lines.append(f"  error           {job.error}")
+    lines += [f"  warning         {message}" for message in job.warnings]
+    if job.state.terminal and job.finished_at is not None and job.started_at is not None:
+        lines.append(
+            f"  ran             {fmt_seconds((job.finished_at - job.started_at).total_seconds())}"
+        )
+    if job.disk_bytes is not None:
+        lines.append(f"  disk            {job.disk_bytes / 1e6:.1f} MB")
     if job.has_model:
         lines.append(f"  model           sparsesplat render {job.id} ... / export {job.id}")
     return "\n".join(lines)

@@ -12,6 +12,7 @@ import argparse
 import json
 import posixpath
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, get_args
 
@@ -20,7 +21,8 @@ from pydantic import ValidationError
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.api.jobs import PresetName
 from sparsesplat.client.commands.common import add_connection, client, dump, guarded, json_argument
-from sparsesplat.client.errors import InvalidInput, JobFailed
+from sparsesplat.client.commands.status import describe
+from sparsesplat.client.errors import InvalidInput, JobFailed, JobWarning
 from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import Upload, read_scene
 
@@ -147,11 +149,20 @@ def run(args: argparse.Namespace) -> int:
                 print(dump(job.info) if args.json else job.id)
                 return 0
             try:
-                final = job.wait(args.timeout, progress=False if args.no_progress else None)
+                with warnings.catch_warnings():
+                    # The summary below lists the job's warnings; said once is enough.
+                    warnings.simplefilter("ignore", JobWarning)
+                    final = job.wait(args.timeout, progress=False if args.no_progress else None)
             except JobFailed as exc:
                 print(dump(exc.job) if args.json else exc.job.id)
+                if not args.json:
+                    print(describe(exc.job), file=sys.stderr)
                 raise
             print(dump(final) if args.json else final.id)
+            if not args.json:
+                # The end of the run on every stream, terminal or not: state, metrics, warnings
+                # (stdout keeps only the id, for scripts).
+                print(describe(final), file=sys.stderr)
             return 0
 
     return guarded(args, body)

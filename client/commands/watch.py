@@ -24,6 +24,8 @@ def row(event: Event) -> list[str]:
     """Table cells of one event."""
     d = event.data
     state = str(d.get("state") or d.get("phase") or "")
+    if event.type == "warning":  # the message is the point of the event: give it the row
+        return [str(event.seq), event.time.strftime("%H:%M:%S"), event.type, str(d.get("message"))]
     iteration = d.get("iteration")
     total = d.get("total")
     it = "" if iteration is None else (f"{iteration}/{total}" if total else str(iteration))
@@ -41,7 +43,7 @@ def row(event: Event) -> list[str]:
 
 
 def _line(cells: list[str] | tuple[str, ...]) -> str:
-    return "  ".join(c.ljust(w) for c, w in zip(cells, _WIDTHS, strict=True)).rstrip()
+    return "  ".join(c.ljust(w) for c, w in zip(cells, _WIDTHS, strict=False)).rstrip()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
             for event in c.events(args.job, args.after, timeout=args.timeout):
                 print(event.model_dump_json() if args.json else _line(row(event)), flush=True)
             job = c.get_job(args.job)
+        for message in job.warnings:
+            print(f"warning: {job.id}: {message}", file=sys.stderr)
         if job.state != JobState.succeeded:
             if job.error:
                 print(f"{job.id} {job.state.value}: {job.error}", file=sys.stderr)

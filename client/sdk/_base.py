@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import uuid
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar, get_args
@@ -18,13 +19,14 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.jobs import Job, JobPage, JobSpec, JobState, ModelInfo, Record
 from sparsesplat.api.names import ExportFormat
-from sparsesplat.api.renders import RenderOutput
+from sparsesplat.api.renders import RENDER_WARNING_HEADER, RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
 from sparsesplat.client import media
 from sparsesplat.client.errors import (
     APIError,
     ConnectionFailed,
     InvalidInput,
+    RenderWarning,
     ServerError,
     Timeout,
     error_for_status,
@@ -99,6 +101,15 @@ def _model(model: type[ModelT]) -> Callable[[httpx.Response], ModelT]:
 
 
 def _content(response: httpx.Response) -> bytes:
+    return response.content
+
+
+def _render_content(response: httpx.Response) -> bytes:
+    """A render's bytes; a :class:`RenderWarning` when the service says it sees nothing."""
+    message = response.headers.get(RENDER_WARNING_HEADER)
+    if message:
+        # stacklevel 4: past this parser, _finish and _send, to the handle that sent the call.
+        warnings.warn(f"render: {message}", RenderWarning, stacklevel=4)
     return response.content
 
 
@@ -299,7 +310,9 @@ class _Base:
             timeout = min(self.timeouts.render * max(1, len(path)), self.timeouts.download)
         else:
             body["camera"] = _camera_json(camera) if camera is not None else None
-        return _Call("POST", f"/v1/models/{model_id}/render", _content, timeout, True, json=body)
+        return _Call(
+            "POST", f"/v1/models/{model_id}/render", _render_content, timeout, True, json=body
+        )
 
     def _c_export(self, model_id: str, format: ExportFormat) -> _Call[bytes]:
         if format not in get_args(ExportFormat):

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Generic, TypeVar
 
 from sparsesplat.api.jobs import Event, Job, JobState, Record
-from sparsesplat.client.errors import JobFailed
+from sparsesplat.client.errors import JobFailed, warn_about
 from sparsesplat.client.progress import ProgressBar
 from sparsesplat.client.scenes import Upload
 from sparsesplat.client.sdk._config import EventCallback
@@ -87,6 +87,7 @@ class JobHandle(_JobHandleBase["Client"]):
         finally:
             bar.close()
         job = self.refresh()
+        warn_about(job)
         if raise_on_failure and job.state != JobState.succeeded:
             raise JobFailed(job)
         return job
@@ -150,6 +151,7 @@ class AsyncJobHandle(_JobHandleBase["AsyncClient"]):
         finally:
             bar.close()
         job = await self.refresh()
+        warn_about(job)
         if raise_on_failure and job.state != JobState.succeeded:
             raise JobFailed(job)
         return job

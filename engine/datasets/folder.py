@@ -25,9 +25,11 @@ from sparsesplat.api.scenes.splits import evenly
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets.common import (
     BLACK,
+    CommonView,
     check_camera_positions,
     check_image_size,
     check_overlap,
+    common_view,
     covisible_box,
     load_view,
     look_at_bounds,
@@ -98,15 +100,19 @@ def _scene_bounds(
     train: list[View],
     train_cams: list[Camera],
     source: str,
+    seen: CommonView | None = None,
 ) -> tuple[float, float]:
     """The scene's near/far: the file's, else the frames' own (nearest near, farthest far),
-    else the user depth maps' range with a margin, else where the optical axes meet."""
+    else the user depth maps' range with a margin, else the depth range of ``seen`` (what all
+    training cameras see), else where the optical axes meet."""
     frame_near = [f.near for f in frames if f.near is not None]
     frame_far = [f.far for f in frames if f.far is not None]
     near = meta.near or (min(frame_near) if frame_near else None)
     far = meta.far or (max(frame_far) if frame_far else None)
     if near is None or far is None:  # estimate only what was not given
         guess_near, guess_far = look_at_bounds(train_cams)
+        if seen is not None:  # an object seen from around it: the depths of what all see
+            guess_near, guess_far = seen.near, seen.far
         depths = [v.depth[v.depth > 0] for v in train if v.depth is not None]
         if depths and sum(d.numel() for d in depths) > 0:
             valid = torch.cat(depths)
@@ -138,7 +144,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     frame or top level, e.g. 1000 for millimetre PNGs), object masks as ``View.mask`` (a
     held-out view with one is scored on the object, the DTU protocol). The scene's near/far
     and init box are the file's ``near``/``far``/``init_box`` when it gives them (per-frame
-    bounds shape the box), else estimated (:func:`_scene_bounds`).
+    bounds shape the box), else estimated: for an object photographed from around it, the
+    region all training cameras see and its depth range (:func:`common_view`), else the region
+    two cameras see between the look-at bounds (:func:`_scene_bounds`, :func:`covisible_box`).
 
     Images with an alpha channel are composited on white (the scene background), without
     alpha the background is black; the trainer re-composites on its configured background."""
@@ -178,7 +186,14 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     train, test, background = on_default_background(
         [view(i, BLACK) for i in train_idx], [view(i, BLACK) for i in test_idx], BLACK
     )
-    near, far = _scene_bounds(meta, [frames[i] for i in all_idx], train, train_cams, str(path))
+    given: list[object] = [meta.near, meta.far, meta.init_box]
+    given += [v for f in frames for v in (f.near, f.far, f.depth)]
+    # No bounds at all (the documented recipe for Blender-like uploads): frame the scene by
+    # what every training camera sees rather than by the wide look-at guess.
+    seen = common_view(train_cams) if all(v is None for v in given) else None
+    near, far = _scene_bounds(
+        meta, [frames[i] for i in all_idx], train, train_cams, str(path), seen
+    )
     train_near, train_far = _view_bounds([frames[i] for i in train_idx], near, far, str(path))
     alone = check_overlap(train_cams, train_names, near, far, str(path))
     if alone:
@@ -187,7 +202,9 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
             path,
             ", ".join(alone),
         )
-    box = meta.init_box or covisible_box(train_cams, train_near, train_far)
+    box = meta.init_box or (
+        seen.box if seen is not None else covisible_box(train_cams, train_near, train_far)
+    )
     return Scene(
         name=root.name,
         format="folder",

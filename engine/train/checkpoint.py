@@ -33,6 +33,36 @@ def save_checkpoint(state: dict[str, Any], path: str | Path) -> Path:
     return path
 
 
+MODEL_KEYS = (
+    "version", "config", "scene_name", "iteration", "elapsed_s", "extent", "raster_near",
+    "background", "gaussians", "color", "records",
+)  # fmt: skip
+"""What a stored model needs to render and to be exported (:class:`TrainedModel`, the .ply and
+.splat exports): no optimizer, densification, generator or depth-pass state."""
+TABLE_DTYPE = torch.float16
+"""Precision the colour field's hash tables are stored at in a finished model: their values
+are small feature offsets, and a render from half-precision tables stays within one 8-bit
+level of the full-precision render (tests/engine/train/test_stored_model.py)."""
+_TABLE_KEYS = ("grid.embeddings",)
+"""Colour-field weights that are hash tables (the bulk of a model: 2^19 x 16 levels x 2)."""
+
+
+def model_state(state: dict[str, Any]) -> dict[str, Any]:
+    """The finished-model form of a training checkpoint ``state``: only :data:`MODEL_KEYS`,
+    the colour field's tables at :data:`TABLE_DTYPE`, marked ``model_only`` (a run cannot be
+    resumed from it; a running job's checkpoints keep everything)."""
+    model = {k: state[k] for k in MODEL_KEYS if k in state}
+    color = dict(model["color"])
+    if "weights" in color:
+        color["weights"] = {
+            k: v.to(TABLE_DTYPE) if k in _TABLE_KEYS and v.is_floating_point() else v
+            for k, v in color["weights"].items()
+        }
+    model["color"] = color
+    model["model_only"] = True
+    return model
+
+
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint` (CheckpointError if invalid)."""
     path = Path(path)

@@ -311,7 +311,15 @@ class Recorder:
                 name: {**scores, "coverage": self.view_coverage[name]}
                 for name, scores in self.view_scores.items()
             }
-        warning = self.emptiness_warning(metrics.get("psnr"))
+        # Before any training step (the first record) a model is no better than the background
+        # by construction, and a run that writes nothing is a timing probe of a few
+        # iterations: judging either is a false alarm in every healthy job's log.
+        trained = (
+            self.out_dir is not None
+            and bool(self.records)
+            and int(self.records[-1].get("iteration", 0)) > 0
+        )
+        warning = self.emptiness_warning(metrics.get("psnr")) if trained else None
         if warning:  # surfaced by the caller (the CLI prints it, the service stores it)
             log.info("%s: %s", self.scene.name, warning)
             metrics["warnings"] = [warning]

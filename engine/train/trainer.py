@@ -59,7 +59,12 @@ from sparsesplat.engine.losses import (
 )
 from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
-from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
+from sparsesplat.engine.train.checkpoint import (
+    CHECKPOINT_NAME,
+    CheckpointError,
+    load_checkpoint,
+    save_checkpoint,
+)
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.consistency import WarpConsistency
 from sparsesplat.engine.train.densify import DensifyStrategy, ModelCollapsed
@@ -207,7 +212,13 @@ class Trainer:
         """Set from another thread (a job's cancel or a time budget): the run stops after the
         current iteration, with a checkpoint, as if the progress callback had said stop."""
         if resume_from is not None:
-            self._load_state(load_checkpoint(resume_from))
+            state = load_checkpoint(resume_from)
+            if state.get("model_only"):
+                raise CheckpointError(
+                    f"checkpoint {resume_from}: a finished model (no optimizer state); it "
+                    "renders and exports, but training cannot resume from it"
+                )
+            self._load_state(state)
 
     # -- setup -----------------------------------------------------------------------------
     def _setup_data(self) -> None:

@@ -223,7 +223,10 @@ def get_image(
         manifest = json.loads((upload / PHOTOS_FILE).read_text())
         frames = [{"image": image} for image in manifest["images"]]
     if index >= len(frames):
-        raise ServiceError(404, "image_not_found", f"job {job.id} has {len(frames)} images")
+        raise ServiceError(
+            404, "image_not_found",
+            f"job {job.id} has {len(frames)} images: indices 0 to {len(frames) - 1}",
+        )  # fmt: skip
     path = service.storage.upload_dir(job.id) / frames[index]["image"]
     return FileResponse(path, media_type=_IMAGE_TYPES.get(path.suffix, "application/octet-stream"))
 
@@ -233,6 +236,12 @@ def get_prior(
     job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
 ) -> FileResponse:
     """The depth prior of the ``index``-th training view (near = bright), once computed."""
+    if index >= job.n_train_views:
+        raise ServiceError(
+            404, "prior_not_found",
+            f"job {job.id} has {job.n_train_views} training views: depth priors 0 to "
+            f"{job.n_train_views - 1}",
+        )  # fmt: skip
     path = service.storage.prior_picture(job.id, index)
     if not path.is_file():
         raise ServiceError(

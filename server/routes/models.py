@@ -65,6 +65,11 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
         exports=exports,
         cameras=cameras,
         background=tuple(result["background"]) if result.get("background") else None,
+        disk_bytes=result.get("disk_bytes"),
+        depth_priors=sum(
+            service.storage.prior_picture(model_id, k).is_file()
+            for k in range(sum(c.get("split", "train") == "train" for c in cameras))
+        ),
     )
 
 

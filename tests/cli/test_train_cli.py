@@ -74,7 +74,10 @@ def test_an_empty_model_is_flagged(tmp_path: Path) -> None:
     args[1] = "2"  # --iterations 2: a nearly transparent model
     result = run_cli("train", str(scene), "--out", str(tmp_path / "run"), *args)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "sparsesplat train: warning: held-out PSNR" in result.stderr
+    # With the bounds framed by what every camera sees, 20 faint points may also leave the
+    # renders empty: the one warning names both problems.
+    warning = next(line for line in result.stderr.splitlines() if "warning:" in line)
+    assert warning.startswith("sparsesplat train: warning: ") and "held-out PSNR" in warning
     assert "no better than a constant background image" in result.stderr
     assert result.stderr.count("no better than") == 1, "said once"
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())

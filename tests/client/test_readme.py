@@ -152,6 +152,21 @@ def test_cli_commands_and_exit_codes(trained: Trained, tmp_path: Path) -> None:
     bad = _cli("render", job_id, "--camera", json.dumps(sheared), "-o", "x.png", url=url,
                cwd=tmp_path)  # fmt: skip
     assert bad.returncode == 2 and "rigid" in bad.stderr
+    # --view out of range says the valid range; a local checkpoint needs --camera.
+    beyond = _cli("render", job_id, "--view", "test:7", "-o", "x.png", url=url, cwd=tmp_path)
+    assert beyond.returncode == 2 and "give test:0 to test:1" in beyond.stderr, beyond.stderr
+    local_view = _cli("render", "ck.pt", "--view", "test:0", "-o", "l.png", url=url, cwd=tmp_path)
+    assert local_view.returncode == 2 and "--camera FILE" in local_view.stderr
+    assert "is required" not in local_view.stderr
+    # A camera 1000 units away sees nothing: the service says so, the CLI warns.
+    far = json.loads(camera)
+    for row in far["matrix"][:3]:
+        row[3] *= 1000.0 / max(1e-9, sum(r[3] ** 2 for r in far["matrix"][:3]) ** 0.5)
+    away = _cli("render", job_id, "--camera", json.dumps(far), "-o", "far.png", url=url,
+                cwd=tmp_path)  # fmt: skip
+    assert away.returncode == 0 and "warning: render: the camera sees nothing" in away.stderr
+    near = _cli("render", job_id, "--camera", camera, "-o", "near.png", url=url, cwd=tmp_path)
+    assert near.returncode == 0 and "warning" not in near.stderr
     down = _cli("jobs", url="http://127.0.0.1:9", cwd=tmp_path)
     assert down.returncode == 9 and "cannot reach" in down.stderr
 
@@ -180,5 +195,12 @@ def test_cli_submit_cancel_delete(server: Server, trained: Trained, tmp_path: Pa
     for job_id in (job["id"], files.stdout.strip()):
         assert _cli("delete", job_id, url=server.url, cwd=tmp_path).returncode == 0
         assert _cli("status", job_id, url=server.url, cwd=tmp_path).returncode == 4
+    # --wait with stdout not a terminal: the id on stdout, the end of the run on stderr.
+    waited = _cli("submit", str(folder), "--iterations", "5", "--wait", url=server.url,
+                  cwd=tmp_path)  # fmt: skip
+    assert waited.returncode == 0, waited.stderr
+    assert waited.stdout.strip().startswith("job_")
+    assert f"{waited.stdout.strip()}  succeeded" in waited.stderr
+    assert "held-out PSNR" in waited.stderr, waited.stderr
     refused = _cli("submit", str(tmp_path / "nothing"), url=server.url, cwd=tmp_path)
     assert refused.returncode == 2 and "not found" in refused.stderr

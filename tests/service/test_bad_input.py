@@ -343,3 +343,131 @@ def test_live_view_of_a_job_without_model_closes_with_4409(client: TestClient) -
     assert closed.value.code == 4404
     assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204
     _nothing_left(client)
+
+
+def _look_at_opengl(eye: np.ndarray) -> list[list[float]]:
+    """Blender-style camera-to-world (OpenGL axes: +z back) of a camera at ``eye`` looking at
+    the origin, +z up in the world."""
+    back = eye / np.linalg.norm(eye)
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, back, eye
+    return c2w.tolist()
+
+
+def _orbit(convention: str, pose: str) -> dict[str, Any]:
+    """Three views of an orbit of radius 4 around the origin (the NeRF-Blender layout, 400x400
+    at a 40° field of view, scaled to SIZE pixels), whose matrices are OpenGL camera-to-world
+    whatever ``convention`` and ``pose`` the file claims."""
+    focal = 0.5 * SIZE / np.tan(np.radians(20.0))
+    frames = []
+    for i, azimuth in enumerate((10.0, 120.0, 230.0)):
+        a, elevation = np.radians(azimuth), np.radians(30.0)
+        eye = 4.0 * np.array([np.cos(a) * np.cos(elevation), np.sin(a) * np.cos(elevation),
+                              np.sin(elevation)])  # fmt: skip
+        frames.append({"image": f"v{i}.png", "matrix": _look_at_opengl(eye), "fx": focal,
+                       "fy": focal, "cx": SIZE / 2, "cy": SIZE / 2})  # fmt: skip
+    return {"convention": convention, "pose": pose, "frames": frames}
+
+
+def test_the_blender_orbit_with_its_own_reading_is_accepted(client: TestClient) -> None:
+    response = client.post("/v1/jobs", files=_parts(_orbit("opengl", "camera_to_world")))
+    assert response.status_code == 201, response.text
+
+
+WRONG_READINGS = {
+    # claimed (convention, pose) -> the fix the answer must name
+    ("opencv", "camera_to_world"): ['"convention": "opengl"'],
+    ("opengl", "world_to_camera"): ['"pose": "camera_to_world"'],
+    ("opencv", "world_to_camera"): ['"convention": "opengl"', '"pose": "camera_to_world"'],
+}
+
+
+@pytest.mark.parametrize("claimed", sorted(WRONG_READINGS))
+def test_matrices_read_the_wrong_way_are_refused_naming_the_fix(
+    client: TestClient, claimed: tuple[str, str]
+) -> None:
+    response = client.post("/v1/jobs", files=_parts(_orbit(*claimed)))
+    assert response.status_code == 422, response.text
+    body = response.json()
+    assert body["code"] == "implausible_poses"
+    for fix in WRONG_READINGS[claimed]:
+        assert fix in body["message"], body["message"]
+    _nothing_left(client)
+
+
+def test_an_init_box_behind_every_camera_is_refused(client: TestClient) -> None:
+    # The bad-input cameras look down +z from z = 0: a box at z < 0 is behind all of them.
+    response = client.post(
+        "/v1/jobs", files=_parts({**_cameras(), "init_box": [[-1, -1, -5], [1, 1, -3]]})
+    )
+    assert response.status_code == 422 and "behind" in response.json()["message"]
+    _nothing_left(client)
+
+
+MESSAGE_CASES: dict[str, tuple[Any, str, str]] = {
+    # case -> (parts, words the message must hold, words it must not)
+    "unknown form part": (lambda: [*_parts(_cameras()), ("spec ", (None, "{}"))], "'spec '", ""),
+    "corrupt image": (
+        lambda: _parts(_cameras(), {"v0.png": b"not an image", "v1.png": _png(), "v2.png": _png()}),
+        "v0.png",
+        "BytesIO",
+    ),
+    "convention in capitals": (
+        lambda: _parts({**_cameras(), "convention": "OpenGL"}),
+        "got 'OpenGL'",
+        "",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MESSAGE_CASES))
+def test_messages_name_what_was_sent(client: TestClient, case: str) -> None:
+    make, words, never = MESSAGE_CASES[case]
+    response = client.post("/v1/jobs", files=make())
+    assert response.status_code == 422, response.text
+    message = response.json()["message"]
+    assert words in message and (not never or never not in message), message
+    _nothing_left(client)
+
+
+def test_no_error_message_names_a_server_path(client: TestClient) -> None:
+    """Every refusal of the bad-input suite, read for the data directory (or any absolute
+    path under it): a message is for the user, the server's layout is not."""
+    data = str(client.data_dir)  # type: ignore[attr-defined]
+    makers = [make for make, _, _ in BAD_CASES.values()]
+    makers += [make for make, _, _ in MESSAGE_CASES.values()]
+    makers += [lambda c=claimed: _parts(_orbit(*c)) for claimed in WRONG_READINGS]
+    messages = [client.post("/v1/jobs", files=make()).json()["message"] for make in makers]
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    for url in (f"/v1/jobs/{job['id']}/priors/7", f"/v1/jobs/{job['id']}/images/9",
+                f"/v1/models/{job['id']}", "/v1/jobs/job_00000000000000000000"):  # fmt: skip
+        messages.append(client.get(url).json()["message"])
+    assert len(messages) == len(makers) + 4
+    leaking = [m for m in messages if data in m or "/jobs/job_" in m or "staging" in m]
+    assert not leaking, leaking
+
+
+def test_an_index_out_of_range_says_the_range(client: TestClient) -> None:
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    response = client.get(f"/v1/jobs/{job['id']}/priors/7")
+    assert response.status_code == 404
+    assert "3 training views: depth priors 0 to 2" in response.json()["message"]
+    response = client.get(f"/v1/jobs/{job['id']}/images/3")
+    assert response.status_code == 404 and "indices 0 to 2" in response.json()["message"]
+    # In range but not computed yet: the 'none yet' answer stays.
+    assert "none yet" in client.get(f"/v1/jobs/{job['id']}/priors/0").json()["message"]
+
+
+def test_a_bare_camera_body_says_to_wrap_it(client: TestClient) -> None:
+    job = client.post("/v1/jobs", files=_parts(_cameras())).json()
+    camera = {"convention": "opencv", "pose": "camera_to_world",
+              "matrix": _frame("x")["matrix"], "fx": 30, "fy": 30, "cx": 16, "cy": 16,
+              "width": 32, "height": 32}  # fmt: skip
+    response = client.post(f"/v1/models/{job['id']}/render", json=camera)
+    assert response.status_code == 422
+    message = response.json()["message"]
+    assert '{"camera": {...}}' in message and "Extra inputs" not in message, message
+    assert message.count("\n") == 0 and message.count(";") <= 1, message

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from pathlib import Path
@@ -131,3 +132,66 @@ def test_keys_are_stored_hashed_and_revocable(store: JobStore) -> None:
     assert key not in stored and len(stored) == 64
     assert keys.revoke(info.id) and keys.verify(key) is None
     assert not keys.revoke(info.id)
+
+
+def test_a_warning_is_a_field_of_the_job_and_an_event_once(store: JobStore) -> None:
+    job_id = _submit(store)
+    message = "2 of 2 evaluated views render (nearly) empty. Check the poses"
+    seq = store.add_warning(job_id, message)
+    assert seq > 0 and store.add_warning(job_id, message) == 0, "the same warning once"
+    assert store.get(job_id).warnings == [message]  # type: ignore[union-attr]
+    warnings = [e for e in store.events_after(job_id) if e.type == "warning"]
+    assert [(e.seq, e.data) for e in warnings] == [(seq, {"message": message})]
+    assert store.get(_submit(store)).warnings == []  # type: ignore[union-attr]
+
+
+def test_a_failed_jobs_message_names_no_server_folder(tmp_path: Path) -> None:
+    job = new_job_id()
+    from sparsesplat.api.storage import Storage
+    from sparsesplat.worker.job_runner import public_message
+
+    storage = Storage(tmp_path / "data")
+    upload = storage.upload_dir(job)
+    engine_says = f"{upload}/cameras.json: no two cameras see a common region"
+    message = public_message(engine_says, storage, job)
+    assert message == "cameras.json: no two cameras see a common region"
+    assert str(tmp_path) not in public_message(f"{storage.root} is full", storage, job)
+
+
+def test_a_dead_workers_job_is_requeued_at_once_and_keeps_its_place(store: JobStore) -> None:
+    """Worker death seen by its supervisor: the job goes back at once (its lease has not run
+    out yet) and, being the oldest, is the next one claimed, ahead of jobs submitted later."""
+    from sparsesplat.api.store.workers import WorkerRegistry
+
+    first = _submit(store)
+    claim = store.claim("train-dead", lease_s=600)
+    assert claim is not None and claim.job_id == first
+    later = [_submit(store) for _ in range(3)]
+    registry = WorkerRegistry(store.engine)
+    registry.register("train-dead", "train")
+    dead = registry.ids_of_process(os.getpid())
+    assert dead == ["train-dead"]
+    assert store.requeue_expired() == [], "the lease is still valid"
+    assert store.requeue_of_workers(dead) == [first]
+    job = store.get(first)
+    assert job is not None and job.state == JobState.queued and job.queue_position == 0
+    assert store.get(later[0]).queue_position == 1  # type: ignore[union-attr]
+    again = store.claim("train-new", lease_s=600)
+    assert again is not None and (again.job_id, again.attempt) == (first, 2)
+
+
+def test_the_supervisor_reports_a_dead_worker_before_replacing_it() -> None:
+    import subprocess
+    import sys
+
+    from sparsesplat.worker.supervisor import Supervisor, _Slot
+
+    seen: list[tuple[str, int]] = []
+    supervisor = Supervisor(0, 0, on_exit=lambda kind, pid: seen.append((kind, pid)))
+    slot = _Slot("train", subprocess.Popen([sys.executable, "-c", "pass"]), time.monotonic())
+    assert slot.process is not None
+    pid = slot.process.pid
+    slot.process.wait()
+    supervisor._tend(slot, time.monotonic())
+    assert seen == [("train", pid)]
+    assert slot.process is None, "replaced only after the back-off"

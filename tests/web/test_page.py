@@ -103,7 +103,9 @@ def trained_job(
     files = [mic_folder / "cameras.json", *sorted(mic_folder.glob("*.png"))]
     page.set_input_files("#job-files", [str(f) for f in files])
     page.wait_for_selector("#job-submit:not([disabled])")
-    assert "5 frames (3 training, 2 held-out)" in page.text_content("#upload-summary")
+    summary = page.text_content("#upload-summary") or ""
+    assert "5 frames (3 training, 2 held-out)" in summary
+    assert "null" not in summary, summary
     page.select_option("#job-length", "iterations")
     # Long enough for several records at 1 s even on a quiet, fast machine: 30 iterations
     # with a record every 3 s trained in under 3 s there and left the chart one live point.
@@ -311,6 +313,40 @@ def test_job_page_heldout_renders_equal_the_render_api(
         expected = post_render(service.url, trained_job.id, camera)
         assert np.array_equal(pixels(shown), pixels(expected)), f"camera {index}"
     page.wait_for_selector("#training-views img.render[data-ready='1']")
+    console.assert_clean()
+    context.close()
+
+
+@pytest.mark.shared_data
+def test_job_page_shows_the_uploaded_photos_and_priors_from_the_api(
+    browser: Any, service: LiveService, trained_job: TrainedJob
+) -> None:
+    """A tab that did not upload the job still shows each photo (``/images/{i}``) beside its
+    render, byte for byte the upload, and a depth prior (or a note) beside each training
+    view; no sentence claims the API does not serve them."""
+    cameras = wire_cameras(service.url, trained_job.id)
+    context, page, console = new_page(browser, service.url)
+    page.goto(f"/#/jobs/{trained_job.id}")
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('img.photo')].filter((i) => i.complete"
+        " && i.naturalWidth > 0).length === 5"
+    )
+    for index in range(len(cameras)):
+        selector = f"figure[data-camera-index='{index}'] img.photo"
+        shown = image_bytes(page, selector)
+        uploaded = httpx.get(f"{service.url}/v1/jobs/{trained_job.id}/images/{index}", timeout=30)
+        assert np.array_equal(pixels(shown), pixels(uploaded.content)), f"photo {index}"
+    training = page.locator("#training-views figure")
+    assert training.count() == 3
+    priors = page.locator("#training-views img.prior")
+    notes = page.locator("#training-views .pair span.muted", has_text="no depth prior")
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('#training-views img.prior')].every("
+        "(i) => i.complete && i.naturalWidth > 0)"
+    )
+    assert priors.count() + notes.count() == 3
+    text = page.text_content("#job-views") or ""
+    assert "does not serve" not in text and "no API route" not in text
     console.assert_clean()
     context.close()
 

@@ -66,13 +66,14 @@ export function mount(container, { jobId }) {
   const progressBox = el("div#job-progress");
   const details = el("dl.details#job-details");
   const errorBox = el("p.error-text#job-error", { hidden: true });
+  const warningBox = el("div#job-warnings", { hidden: true });
   const chartBox = el("div#job-chart.chart");
   const latest = el("table.metrics#job-latest");
   const viewsBox = el("section#job-views");
 
   container.append(
     el("p", {}, el("a", { href: "#/" }, "← Jobs")),
-    el("section.card", {}, el("div.card-head", {}, title, badge, el("span.spacer"), live, actions), errorBox, progressBox, details),
+    el("section.card", {}, el("div.card-head", {}, title, badge, el("span.spacer"), live, actions), errorBox, warningBox, progressBox, details),
     el("section.card", {}, el("div.chart-row", {}, chartBox, el("div", {}, el("h3", {}, "Latest record"), latest))),
     viewsBox,
   );
@@ -97,6 +98,9 @@ export function mount(container, { jobId }) {
     badge.replaceChildren(stateBadge(job.state));
     errorBox.hidden = !job.error;
     errorBox.textContent = job.error || "";
+    const warnings = job.warnings || [];
+    warningBox.hidden = !warnings.length;
+    warningBox.replaceChildren(...warnings.map((w) => el("p.warning-text", {}, `Warning: ${w}`)));
     actions.replaceChildren();
     if (!isTerminal(job.state)) actions.append(el("button.small.secondary#job-cancel", { type: "button", onclick: cancel }, "Cancel"));
     if (job.state === "succeeded") {
@@ -207,9 +211,7 @@ export function mount(container, { jobId }) {
     const cameras = model.cameras.map((c, index) => ({ ...c, index }));
     const test = cameras.filter((c) => c.split === "test");
     const train = cameras.filter((c) => c.split !== "test");
-    const photoNote = session
-      ? "Photos as uploaded from this tab."
-      : "The API does not serve uploaded photos back: submit from this tab to see them beside the renders.";
+    const photoNote = "Each photo as uploaded (GET /v1/jobs/{id}/images/{i}) beside the server's render.";
     viewsBox.replaceChildren(
       el(
         "section.card#heldout-views",
@@ -226,19 +228,42 @@ export function mount(container, { jobId }) {
           "p.muted",
           {},
           photoNote,
-          " Depth priors: the worker caches them in the run folder, but no API route serves them yet, so they are not shown.",
+          " With each, its depth prior (GET /v1/jobs/{id}/priors/{k}, near = bright) once the worker has computed it.",
         ),
-        el("div.view-grid", {}, train.map((c) => viewCard(c, session))),
+        el("div.view-grid", {}, train.map((c, k) => viewCard(c, session, k, model.depth_priors || 0))),
       ),
     );
   }
 
-  function viewCard(camera, session) {
+  /** An <img> filled from an authenticated GET (an <img src> cannot send the API key). */
+  function fetchedImage(spec, attrs, path, missing) {
+    const img = el(spec, attrs);
+    request(path, { as: "blob" })
+      .then((blob) => {
+        img.src = URL.createObjectURL(blob);
+        urls.push(img.src);
+      })
+      .catch(() => {
+        img.replaceWith(el("span.muted", {}, missing));
+      });
+    return img;
+  }
+
+  function viewCard(camera, session, trainIndex, depthPriors = 0) {
     const file = session && session.files[camera.index];
     const render = el("img.render", { alt: `render at camera ${camera.index}`, width: camera.width, height: camera.height, dataset: { cameraIndex: String(camera.index), split: camera.split } });
     const status = el("span.muted", {}, "rendering…");
-    const photo = file ? el("img.photo", { alt: `photo ${file.name}`, src: URL.createObjectURL(file), width: camera.width, height: camera.height }) : null;
-    if (photo) urls.push(photo.src);
+    const size = { width: camera.width, height: camera.height };
+    const photo = file
+      ? el("img.photo", { alt: `photo ${file.name}`, src: URL.createObjectURL(file), ...size })
+      : fetchedImage("img.photo", { alt: `photo ${camera.index}`, ...size }, `/v1/jobs/${jobId}/images/${camera.index}`, "photo unavailable");
+    if (file) urls.push(photo.src);
+    const prior =
+      trainIndex === undefined
+        ? null
+        : trainIndex >= depthPriors
+        ? el("span.muted", {}, "no depth prior (the preset uses none)")
+        : fetchedImage("img.prior", { alt: `depth prior ${trainIndex}`, ...size }, `/v1/jobs/${jobId}/priors/${trainIndex}`, "no depth prior (the preset uses none)");
     queue
       .push(() => renderUrl(jobId, pinhole(camera), urls))
       .then((url) => {
@@ -255,8 +280,9 @@ export function mount(container, { jobId }) {
       el(
         "div.pair",
         {},
-        photo ? el("div", {}, photo, el("div.caption", {}, "photo")) : null,
+        el("div", {}, photo, el("div.caption", {}, "photo")),
         el("div", {}, render, el("div.caption", {}, "render ", status)),
+        prior ? el("div", {}, prior, el("div.caption", {}, "depth prior")) : null,
       ),
       el("figcaption", {}, `#${camera.index} ${camera.split} · ${camera.width}×${camera.height}`, file ? ` · ${file.name}` : ""),
     );

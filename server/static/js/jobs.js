@@ -334,7 +334,8 @@ function jobForm() {
     const unused = images.filter((f) => !used.has(f));
     const nTest = frames.filter((f) => f.split === "test").length;
     const bytes = [camerasFile, ...used].reduce((s, f) => s + f.size, 0);
-    summary.replaceChildren(
+    // replaceChildren turns a null argument into the text "null": keep only the lines shown.
+    const lines = [
       el(
         "p",
         {},
@@ -345,7 +346,8 @@ function jobForm() {
       missingDepth.length ? el("p.error-text", {}, `Missing depth map(s): ${missingDepth.slice(0, 8).join(", ")}`) : null,
       missingMask.length ? el("p.error-text", {}, `Missing mask(s): ${missingMask.slice(0, 8).join(", ")}`) : null,
       unused.length ? el("p.muted", {}, `Not in cameras.json (left out): ${unused.slice(0, 8).map((f) => f.name).join(", ")}${unused.length > 8 ? "…" : ""}`) : null,
-    );
+    ];
+    summary.replaceChildren(...lines.filter(Boolean));
     if (missing.length || missingDepth.length || missingMask.length) return;
     plan = { camerasFile, cameras, frames, matched, depths, masks };
     submit.disabled = false;

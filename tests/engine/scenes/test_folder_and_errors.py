@@ -212,3 +212,42 @@ def test_object_mask_of_a_held_out_frame(tmp_path: Path) -> None:
     (root / "held_out_mask.png").unlink()
     with pytest.raises(SceneError, match=r"held_out_mask\.png"):
         load_scene(root)
+
+
+def test_an_object_upload_without_bounds_is_framed_by_what_every_camera_sees(
+    tmp_path: Path,
+) -> None:
+    """Three views around an object at radius 4 (NeRF-synthetic's layout), no bounds given:
+    the box is about the object's [-1, 1] cube rather than the region two frusta share out to
+    3x the look-at depth, and near/far are its depths (about the format's 2 and 6)."""
+    from sparsesplat.engine.camera import Camera
+    from sparsesplat.engine.datasets.common import common_view, covisible_box, look_at_bounds
+
+    cameras = []
+    for azimuth in (10.0, 120.0, 230.0):
+        a, e = np.radians(azimuth), np.radians(30.0)
+        eye = 4.0 * np.array([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.sin(e)])
+        forward = -eye / np.linalg.norm(eye)  # OpenCV axes: +z forward, +y down
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        down = np.cross(forward, right)
+        w2c = np.eye(4)
+        w2c[:3, :3] = np.stack([right, down, forward])
+        w2c[:3, 3] = -w2c[:3, :3] @ eye
+        focal = 100 / np.tan(np.radians(20.0))
+        cameras.append(Camera(torch.tensor(w2c).float(), focal, focal, 100.0, 100.0, 200, 200))
+    seen = common_view(cameras)
+    assert seen is not None
+    low, high = np.array(seen.box)
+    assert np.all(low > -1.5) and np.all(high < 1.5) and np.all(low < -0.5) and np.all(high > 0.5)
+    assert 1.5 < seen.near < 2.8 and 5.0 < seen.far < 7.0
+    near, far = look_at_bounds(cameras)
+    wide = np.array(covisible_box(cameras, [near] * 3, [far] * 3))
+    assert np.prod(high - low) < 0.8 * np.prod(wide[1] - wide[0])
+    # A forward-facing capture has no common look-at: no estimate, the wide rule stays.
+    forward_facing = [
+        Camera(torch.tensor([[1, 0, 0, -0.1 * i], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]),
+               100.0, 100.0, 50.0, 50.0, 100, 100)
+        for i in range(3)
+    ]  # fmt: skip
+    assert common_view(forward_facing) is None
