@@ -9,7 +9,7 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import RasterError
-from sparsesplat.engine.raster.types import RasterOutput
+from sparsesplat.engine.raster.types import RasterInputs, RasterOutput
 
 BACKENDS = ("auto", "cpu", "cuda", "reference")
 """Accepted values of ``rasterize(backend=...)``."""
@@ -28,20 +28,9 @@ def _check_tensor(name: str, t: object, shape: tuple[int | None, ...]) -> Tensor
     return t
 
 
-def _validate(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    background: Tensor | None,
-    near: float,
-    far: float,
-    eps2d: float,
-    backend: str,
-) -> Tensor:
-    """Check every argument; returns the background tensor (zeros when None)."""
+def _validate(args: RasterInputs, backend: str) -> RasterInputs:
+    """Check every argument; returns them with the background a tensor (zeros when None)."""
+    means, log_scales, quats, opacity_logits, features, camera, background, near, far, eps2d = args
     n = _check_tensor("means", means, (None, 3)).shape[0]
     _check_tensor("log_scales", log_scales, (n, 3))
     _check_tensor("quats", quats, (n, 4))
@@ -77,11 +66,11 @@ def _validate(
     if backend not in BACKENDS:
         raise RasterError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     if background is None:
-        return torch.zeros(c, dtype=means.dtype, device=means.device)
+        return args._replace(background=torch.zeros(c, dtype=means.dtype, device=means.device))
     bg = _check_tensor("background", background, (c,))
     if bg.device != means.device:
         raise RasterError(f"background: on {bg.device}, but means is on {means.device}")
-    return bg.to(means.dtype)
+    return args._replace(background=bg.to(means.dtype))
 
 
 def rasterize(
@@ -123,54 +112,40 @@ def rasterize(
         alpha (1,H,W), radii (N,) int32 and means2d (N,2), whose ``.grad`` after backward is the
         screen-space gradient densification uses.
     """
-    bg = _validate(
-        means, log_scales, quats, opacity_logits, features, camera, background, near, far,
-        eps2d, backend,
+    # The background may be None until _validate fills it in.
+    args = RasterInputs(
+        means, log_scales, quats, opacity_logits, features, camera, background,  # type: ignore[arg-type]
+        near, far, eps2d,
     )  # fmt: skip
+    args = _validate(args, backend)
     if backend == "auto":
         backend = "cuda" if means.is_cuda else "cpu"
-    out = _dispatch(
-        means, log_scales, quats, opacity_logits, features, camera, bg, near, far, eps2d, backend
-    )
+    out = _dispatch(args, backend)
     if not opacity_depth or not torch.is_grad_enabled():
         out.opacity_depth = None
     elif out.opacity_depth is None and backend != "cpu":
         empty = features.new_zeros(means.shape[0], 0)
-        out.opacity_depth = _dispatch(
-            means.detach(), log_scales.detach(), quats.detach(), opacity_logits, empty, camera,
-            empty.new_zeros(0), near, far, eps2d, backend,
-        ).depth  # fmt: skip
+        geometry_detached = args._replace(
+            means=means.detach(), log_scales=log_scales.detach(), quats=quats.detach(),
+            features=empty, background=empty.new_zeros(0),
+        )  # fmt: skip
+        out.opacity_depth = _dispatch(geometry_detached, backend).depth
     return out
 
 
-def _dispatch(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    bg: Tensor,
-    near: float,
-    far: float,
-    eps2d: float,
-    backend: str,
-) -> RasterOutput:
+def _dispatch(args: RasterInputs, backend: str) -> RasterOutput:
+    means = args.means
     """Run the named backend on validated inputs."""
     if backend == "reference":
         from sparsesplat.engine.raster.reference import rasterize_reference
 
-        return rasterize_reference(
-            means, log_scales, quats, opacity_logits, features, camera, bg, near, far, eps2d
-        )
+        return rasterize_reference(args)
     if backend == "cuda":
         if not means.is_cuda:
             raise RasterError(f"backend='cuda': tensors must be on CUDA, got {means.device}")
         from sparsesplat.engine.raster.cuda_backend import rasterize_gsplat
 
-        return rasterize_gsplat(
-            means, log_scales, quats, opacity_logits, features, camera, bg, near, far, eps2d
-        )
+        return rasterize_gsplat(args)
     if means.device.type != "cpu":
         raise RasterError(f"backend='cpu': tensors must be on the CPU, got {means.device}")
     if means.dtype != torch.float32:
@@ -179,6 +154,4 @@ def _dispatch(
         )
     from sparsesplat.engine.raster.cpu_backend import rasterize_cpu
 
-    return rasterize_cpu(
-        means, log_scales, quats, opacity_logits, features, camera, bg, near, far, eps2d
-    )
+    return rasterize_cpu(args)

@@ -8,10 +8,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.raster.build import load_extension, load_projection_extension
 from sparsesplat.engine.raster.native_projection import project_native
-from sparsesplat.engine.raster.types import RasterOutput
+from sparsesplat.engine.raster.types import RasterInputs, RasterOutput
 
 
 class _Blend(torch.autograd.Function):
@@ -69,19 +68,9 @@ class _Blend(torch.autograd.Function):
         return v_m2, v_con, v_op, v_dep, v_feat, v_bg, None, None, None
 
 
-def rasterize_cpu(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    background: Tensor,
-    near: float,
-    far: float,
-    eps2d: float,
-) -> RasterOutput:
+def rasterize_cpu(args: RasterInputs) -> RasterOutput:
     """Render float32 CPU tensors with the native kernel (see ``rasterize`` for the contract)."""
+    means, log_scales, quats, opacity_logits, features, camera, background, near, far, eps2d = args
     ext = load_extension()  # build/load before any work so a build failure is the first error
     load_projection_extension()
     proj = project_native(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)

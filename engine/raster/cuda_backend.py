@@ -29,7 +29,7 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import RasterError
-from sparsesplat.engine.raster.types import RasterOutput
+from sparsesplat.engine.raster.types import RasterInputs, RasterOutput
 
 TILE_SIZE = 16
 """Tile edge in pixels (gsplat's default)."""
@@ -59,19 +59,9 @@ def _gsplat() -> ModuleType:
     return gsplat
 
 
-def rasterize_gsplat(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    background: Tensor,
-    near: float,
-    far: float,
-    eps2d: float,
-) -> RasterOutput:
+def rasterize_gsplat(args: RasterInputs) -> RasterOutput:
     """Render float32 CUDA tensors with gsplat (see ``rasterize`` for the contract)."""
+    means, log_scales, quats, opacity_logits, features, camera, background, near, far, eps2d = args
     if means.dtype != torch.float32:
         raise RasterError(
             f"means: gsplat renders float32, got {means.dtype} (use backend='reference')"

@@ -12,9 +12,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.raster.projection import ALPHA_THRESHOLD, Projected, project
-from sparsesplat.engine.raster.types import RasterOutput
+from sparsesplat.engine.raster.types import RasterInputs, RasterOutput
 
 MAX_ALPHA = 0.999
 """Alpha clamp (gsplat)."""
@@ -68,20 +67,9 @@ def composite_dense(
     return image, out[c:], alpha_img
 
 
-def rasterize_reference(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    background: Tensor,
-    near: float,
-    far: float,
-    eps2d: float,
-    dtype: torch.dtype = torch.float64,
-) -> RasterOutput:
+def rasterize_reference(args: RasterInputs, dtype: torch.dtype = torch.float64) -> RasterOutput:
     """Project and composite densely in ``dtype``; outputs are cast back to the input dtype."""
+    means, log_scales, quats, opacity_logits, features, camera, background, near, far, eps2d = args
     in_dtype = means.dtype
     proj = project(
         means.to(dtype),

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from torch import Tensor
+
+from sparsesplat.engine.camera import Camera
 
 
 @dataclass
@@ -31,3 +33,32 @@ class RasterOutput:
     centres, scales, rotations and features see none of it): DNGaussian's soft-depth term
     computed on the photometric render instead of a second one. Set by ``rasterize(...,
     opacity_depth=True)`` when gradients are enabled; None otherwise."""
+
+
+class RasterInputs(NamedTuple):
+    """The checked arguments of one render, as ``rasterize`` hands them to a backend.
+
+    Each field means what the argument of the same name means in ``rasterize`` (its docstring
+    is the contract); ``background`` is always a (C,) tensor here, never None.
+    """
+
+    means: Tensor
+    """(N, 3) world-space centres."""
+    log_scales: Tensor
+    """(N, 3) log standard deviations along the Gaussian's own axes."""
+    quats: Tensor
+    """(N, 4) wxyz rotations."""
+    opacity_logits: Tensor
+    """(N,) opacities before the sigmoid."""
+    features: Tensor
+    """(N, C) per-Gaussian features blended into the image."""
+    camera: Camera
+    """Pose and intrinsics."""
+    background: Tensor
+    """(C,) blended in as ``(1 - alpha) * background``."""
+    near: float
+    """View-space z below which centres are culled."""
+    far: float
+    """View-space z above which centres are culled."""
+    eps2d: float
+    """Low-pass dilation added to the 2D covariance diagonal (pixels^2)."""

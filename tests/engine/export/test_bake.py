@@ -131,16 +131,15 @@ def _look_at(eye: Tensor, size: int = 24) -> Camera:
     return Camera(w2c, 30.0, 30.0, size / 2, size / 2, size, size)
 
 
-def _point_raster(
-    means: Tensor,
-    log_scales: Tensor,
-    quats: Tensor,
-    opacity_logits: Tensor,
-    features: Tensor,
-    camera: Camera,
-    background: Tensor | None = None,
-) -> RasterOutput:
-    """A stand-in renderer: each Gaussian paints the pixel its centre projects to."""
+def _point_raster(*args: Tensor | Camera, background: Tensor | None = None) -> RasterOutput:
+    """A stand-in renderer: each Gaussian paints the pixel its centre projects to.
+
+    Called as ``rasterize`` is, positionally (means, log_scales, quats, opacity_logits,
+    features, camera); only the centres, the features and the camera matter here.
+    """
+    means, features, camera = args[0], args[4], args[5]
+    assert isinstance(means, Tensor) and isinstance(features, Tensor)
+    assert isinstance(camera, Camera)
     cam = camera.world_to_camera[:3, :3] @ means.T + camera.world_to_camera[:3, 3:]
     u = (camera.fx * cam[0] / cam[2] + camera.cx).long().clamp(0, camera.width - 1)
     v = (camera.fy * cam[1] / cam[2] + camera.cy).long().clamp(0, camera.height - 1)

@@ -27,6 +27,7 @@ from sparsesplat.engine.raster.reference import (
     MIN_TRANSMITTANCE,
     rasterize_reference,
 )
+from sparsesplat.engine.raster.types import RasterInputs
 from tests.engine.numerics import (
     DECISION_SAFETY,
     FLOOR_ULPS,
@@ -256,7 +257,9 @@ def render_with_grads(
     m, s, q, o, f = (t.to(device) for t in leaves)
     if backend == "reference32":
         bg32 = torch.zeros(f.shape[1]) if background is None else background.float()
-        out = rasterize_reference(m, s, q, o, f, cam, bg32, near, far, eps2d, dtype=torch.float32)
+        out = rasterize_reference(
+            RasterInputs(m, s, q, o, f, cam, bg32, near, far, eps2d), dtype=torch.float32
+        )
     else:
         bg = None if background is None else background.to(device, dtype)
         out = rasterize(m, s, q, o, f, cam.to(device), bg, near, far, eps2d, backend)

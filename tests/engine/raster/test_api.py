@@ -8,6 +8,7 @@ import torch
 from sparsesplat.engine.errors import RasterError
 from sparsesplat.engine.raster import rasterize
 from sparsesplat.engine.raster.reference import rasterize_reference
+from sparsesplat.engine.raster.types import RasterInputs
 from tests.engine.numerics import assert_float32_close
 
 from .helpers import camera, decision_windows, random_gaussians
@@ -56,10 +57,10 @@ def test_depth_only_pass_and_detached_inputs(seed: int) -> None:
     keep = ~decision_windows(gs, camera()).pixels.unsqueeze(0)
     with torch.no_grad():
         exact = [t.double() for t in gs.tensors()]
-        ref = rasterize_reference(*exact, camera(), torch.zeros(3, dtype=torch.float64),
-                                  0.01, 1e10, 0.3)  # fmt: skip
-        ref32 = rasterize_reference(*gs.tensors(), camera(), torch.zeros(3), 0.01, 1e10, 0.3,
-                                    dtype=torch.float32)  # fmt: skip
+        bg64 = torch.zeros(3, dtype=torch.float64)
+        ref = rasterize_reference(RasterInputs(*exact, camera(), bg64, 0.01, 1e10, 0.3))
+        args32 = RasterInputs(*gs.tensors(), camera(), torch.zeros(3), 0.01, 1e10, 0.3)
+        ref32 = rasterize_reference(args32, dtype=torch.float32)
     for name in ("depth", "alpha"):
         b, c = getattr(ref, name)[keep], getattr(ref32, name)[keep]
         scale = float(b.abs().max())

@@ -131,6 +131,7 @@ def test_opacity_only_backward_matches_reference(channels: int, seed: int) -> No
     geometry-free backward; its opacity and feature gradients, like the full backward's, agree
     with the float64 reference under the float32 rule."""
     from sparsesplat.engine.raster.reference import rasterize_reference
+    from sparsesplat.engine.raster.types import RasterInputs
     from tests.engine.numerics import assert_float32_close
 
     gs = random_gaussians(150, seed, channels=channels)
@@ -144,8 +145,9 @@ def test_opacity_only_backward_matches_reference(channels: int, seed: int) -> No
         feats = gs.features.to(dtype).clone().requires_grad_(channels > 0)
         others = (gs.log_scales.to(dtype), gs.quats.to(dtype))
         if backend == "reference32":
-            out = rasterize_reference(means, *others, logits, feats, cam, torch.zeros(channels),
-                                      0.01, 1e10, 0.3, dtype=torch.float32)  # fmt: skip
+            out = rasterize_reference(RasterInputs(means, *others, logits, feats, cam,
+                                      torch.zeros(channels), 0.01, 1e10, 0.3),
+                                      dtype=torch.float32)  # fmt: skip
         else:
             out = rasterize(means, *others, logits, feats, cam, backend=backend)
         # The loss of helpers.render_with_grads (gradient_terms measures its terms).

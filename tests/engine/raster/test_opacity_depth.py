@@ -15,6 +15,7 @@ from torch import Tensor
 
 from sparsesplat.engine.raster import rasterize
 from sparsesplat.engine.raster.reference import rasterize_reference
+from sparsesplat.engine.raster.types import RasterInputs
 from tests.engine.numerics import assert_float32_close
 
 from .helpers import (
@@ -35,10 +36,13 @@ def _fused_grads(
     m, s, q, o, f = leaves
     bg = torch.zeros(f.shape[1], dtype=dtype)
     if backend == "reference32":
-        out = rasterize_reference(m, s, q, o, f, cam, bg, 0.01, 1e10, 0.3, dtype=torch.float32)
+        out = rasterize_reference(
+            RasterInputs(m, s, q, o, f, cam, bg, 0.01, 1e10, 0.3), dtype=torch.float32
+        )
         empty = f.new_zeros(f.shape[0], 0)
         soft = rasterize_reference(
-            m.detach(), s.detach(), q.detach(), o, empty, cam, bg[:0], 0.01, 1e10, 0.3,
+            RasterInputs(m.detach(), s.detach(), q.detach(), o, empty, cam, bg[:0], 0.01, 1e10,
+                         0.3),
             dtype=torch.float32,
         ).depth  # fmt: skip
     else:

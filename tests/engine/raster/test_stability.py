@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from sparsesplat.engine.raster.reference import rasterize_reference
+from sparsesplat.engine.raster.types import RasterInputs
 from tests.engine.numerics import assert_float32_close
 
 from .helpers import (
@@ -129,16 +130,12 @@ def test_large_image_few_gaussians(seed: int) -> None:
         crop = camera(w, h, fx=2000.0, fy=2100.0, cx=2000.0 - x0, cy=1500.0 - y0)
         keep = ~decision_windows(gs, crop).pixels.expand(3, h, w)
         with torch.no_grad():
+            exact = [t.double() for t in gs.tensors()]
             ref = rasterize_reference(
-                *[t.double() for t in gs.tensors()],
-                crop,
-                torch.zeros(3, dtype=torch.float64),
-                0.01,
-                1e10,
-                0.3,
+                RasterInputs(*exact, crop, torch.zeros(3, dtype=torch.float64), 0.01, 1e10, 0.3)
             )
-            ref32 = rasterize_reference(*gs.tensors(), crop, torch.zeros(3), 0.01, 1e10, 0.3,
-                                        dtype=torch.float32)  # fmt: skip
+            ref32 = rasterize_reference(RasterInputs(*gs.tensors(), crop, torch.zeros(3), 0.01,
+                                                     1e10, 0.3), dtype=torch.float32)  # fmt: skip
         got = out.image.detach()[:, y0 : y0 + h, x0 : x0 + w]
         assert_float32_close(got[keep], ref.image[keep], ref32.image[keep],
                              float(ref.image.abs().max()), f"crop (seed {seed})")  # fmt: skip
