@@ -14,10 +14,12 @@ import difflib
 import math
 import re
 from enum import StrEnum
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     ValidationError,
@@ -131,6 +133,12 @@ def _unknown_field_message(
     return f"unknown field {name!r} (valid fields: {', '.join(valid)})", None
 
 
+RigidMatrix = Annotated[
+    list[list[float]], BeforeValidator(_matrix_shape), AfterValidator(check_rigid_matrix)
+]
+"""A 4x4 rigid pose, row-major: the shape checked before numeric parsing, rigidity after."""
+
+
 class StrictModel(BaseModel):
     """Base of every wire camera model: unknown fields are refused, naming the closest valid
     one; the required fields in ``REQUIRED_HINTS`` say how to fill them in when missing."""
@@ -232,7 +240,7 @@ class CameraFrame(StrictModel):
 
     image: str = Field(min_length=1)
     """File name of the image within the upload (relative, no '..')."""
-    matrix: list[list[float]]
+    matrix: RigidMatrix
     """4x4 rigid pose, row-major, in the file's ``convention`` and ``pose`` direction."""
     fx: float = Field(gt=0, allow_inf_nan=False)
     """Focal length along x in pixels."""
@@ -269,16 +277,6 @@ class CameraFrame(StrictModel):
     def _check_bounds(self) -> CameraFrame:
         check_bounds(self.near, self.far, f"frame {self.image!r}")
         return self
-
-    @field_validator("matrix", mode="before")
-    @classmethod
-    def _check_matrix_shape(cls, value: Any) -> Any:
-        return _matrix_shape(value)
-
-    @field_validator("matrix")
-    @classmethod
-    def _check_matrix(cls, value: list[list[float]]) -> list[list[float]]:
-        return check_rigid_matrix(value)
 
     @field_validator("image")
     @classmethod
@@ -389,7 +387,7 @@ class PinholeCamera(StrictModel):
     +z back)."""
     pose: PoseDirection
     """``camera_to_world`` (the camera's placement) or ``world_to_camera`` (a view matrix)."""
-    matrix: list[list[float]]
+    matrix: RigidMatrix
     """4x4 rigid pose, row-major."""
     fx: float = Field(gt=0, allow_inf_nan=False)
     """Focal length along x in pixels."""
@@ -403,16 +401,6 @@ class PinholeCamera(StrictModel):
     """Image width in pixels."""
     height: int = Field(gt=0)
     """Image height in pixels."""
-
-    @field_validator("matrix", mode="before")
-    @classmethod
-    def _check_matrix_shape(cls, value: Any) -> Any:
-        return _matrix_shape(value)
-
-    @field_validator("matrix")
-    @classmethod
-    def _check_matrix(cls, value: list[list[float]]) -> list[list[float]]:
-        return check_rigid_matrix(value)
 
     def world_to_camera_opencv(self) -> list[list[float]]:
         """The pose as the engine uses it: world-to-camera in OpenCV axes (row-major 4x4)."""
