@@ -297,19 +297,11 @@ class JobStore:
         if progress is not None:
             values["progress"] = progress.model_dump(mode="json")
         with self.engine.begin() as conn:
-            updated = conn.execute(
-                jobs.update()
-                .where(
-                    jobs.c.id == job_id,
-                    jobs.c.worker_id == worker_id,
-                    jobs.c.state == JobState.running.value,
-                )
-                .values(**values)
-            )
+            held = self._update_held(conn, job_id, worker_id, values)
             cancel = conn.execute(
                 sa.select(jobs.c.cancel_requested).where(jobs.c.id == job_id)
             ).scalar_one_or_none()
-        return updated.rowcount == 1, bool(cancel)
+        return held, bool(cancel)
 
     def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
         """Append one event; returns its sequence number."""
@@ -350,16 +342,7 @@ class JobStore:
         if result is not None:
             values["result"] = result
         with self.engine.begin() as conn:
-            updated = conn.execute(
-                jobs.update()
-                .where(
-                    jobs.c.id == job_id,
-                    jobs.c.worker_id == worker_id,
-                    jobs.c.state == JobState.running.value,
-                )
-                .values(**values)
-            )
-            if updated.rowcount != 1:
+            if not self._update_held(conn, job_id, worker_id, values):
                 return False
             self._append(conn, job_id, "state", {"state": state.value, "message": message})
         return True
@@ -444,6 +427,23 @@ class JobStore:
     def _select(owner: str | None) -> sa.Select[Any]:
         query = sa.select(jobs)
         return query if owner is None else query.where(jobs.c.owner == owner)
+
+    @staticmethod
+    def _update_held(
+        conn: sa.Connection, job_id: str, worker_id: str, values: dict[str, Any]
+    ) -> bool:
+        """Set ``values`` on a running job only while ``worker_id`` holds it (the conditional
+        UPDATE that makes a lost lease harmless); True if the row was updated."""
+        updated = conn.execute(
+            jobs.update()
+            .where(
+                jobs.c.id == job_id,
+                jobs.c.worker_id == worker_id,
+                jobs.c.state == JobState.running.value,
+            )
+            .values(**values)
+        )
+        return updated.rowcount == 1
 
     @staticmethod
     def _append(conn: sa.Connection, job_id: str, type_: str, data: dict[str, Any]) -> int:
