@@ -78,8 +78,26 @@ class DivergenceGuard:
         extent: float,
         before: dict[str, Tensor],
     ) -> None:
-        """Judge the step sizes against ``before``; check the values when due."""
-        self._check_step_sizes(iteration, optimizer, gaussians, extent, before)
+        """Judge the step sizes against ``before``: track the running mean |update| per watched
+        group and raise when one blows up; then check the values when due."""
+        limits = self.settings.step_limits
+        for name, old in before.items():
+            new = gaussians.params[name].detach()
+            if new.shape != old.shape or new.numel() == 0:
+                continue  # densified this step: rows changed, nothing comparable
+            d = float((new - old).abs().mean())
+            if name == "means":
+                d /= extent
+            ema = self.step_ema.get(name)
+            ema = d if ema is None else 0.8 * ema + 0.2 * d
+            self.step_ema[name] = ema
+            if iteration >= STEP_CHECK_FROM and ema > limits[name]:
+                unit = " x scene extent" if name == "means" else ""
+                raise TrainingDiverged(
+                    f"training diverged at step {iteration}: parameter group {name!r} "
+                    f"moves {ema:.3g}{unit} per step on average (limit {limits[name]}); its "
+                    f"learning rate ({_group_lr(optimizer, name):.3g}) is too high"
+                )
         s = self.settings
         if iteration % s.check_every == 0 or iteration == self.last_iteration:
             self.check_groups(iteration, optimizer, gaussians, extent, grads=False)
@@ -125,34 +143,6 @@ class DivergenceGuard:
                     f"training diverged at step {iteration}: parameter group {name!r} "
                     f"blew up (values beyond 1e3-1e4 x the scene size; "
                     f"lr={_group_lr(optimizer, name):.3g})"
-                )
-
-    def _check_step_sizes(
-        self,
-        iteration: int,
-        optimizer: torch.optim.Optimizer,
-        gaussians: Gaussians,
-        extent: float,
-        before: dict[str, Tensor],
-    ) -> None:
-        """Track the running mean |update| per watched group; raise when one blows up."""
-        limits = self.settings.step_limits
-        for name, old in before.items():
-            new = gaussians.params[name].detach()
-            if new.shape != old.shape or new.numel() == 0:
-                continue  # densified this step: rows changed, nothing comparable
-            d = float((new - old).abs().mean())
-            if name == "means":
-                d /= extent
-            ema = self.step_ema.get(name)
-            ema = d if ema is None else 0.8 * ema + 0.2 * d
-            self.step_ema[name] = ema
-            if iteration >= STEP_CHECK_FROM and ema > limits[name]:
-                unit = " x scene extent" if name == "means" else ""
-                raise TrainingDiverged(
-                    f"training diverged at step {iteration}: parameter group {name!r} "
-                    f"moves {ema:.3g}{unit} per step on average (limit {limits[name]}); its "
-                    f"learning rate ({_group_lr(optimizer, name):.3g}) is too high"
                 )
 
     def state_dict(self) -> dict[str, Any]:
