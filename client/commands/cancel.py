@@ -4,22 +4,20 @@ from __future__ import annotations
 
 import argparse
 
-from sparsesplat.client.commands.common import add_connection, client, dump, guarded
+from sparsesplat.client.commands.common import add_job_arguments, dump, run_on_job
+from sparsesplat.client.sdk import Client
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The job id."""
-    parser.add_argument("job", help="job id")
-    add_connection(parser)
+    add_job_arguments(parser)
+
+
+def _cancel(c: Client, job_id: str) -> tuple[str, str]:
+    job = c.cancel(job_id)
+    return dump(job), f"{job.id} {job.state.value}"
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the job's state after the request."""
-
-    def body() -> int:
-        with client(args) as c:
-            job = c.cancel(args.job)
-        print(dump(job) if args.json else f"{job.id} {job.state.value}")
-        return 0
-
-    return guarded(args, body)
+    return run_on_job(args, _cancel)

@@ -51,6 +51,12 @@ def add_connection(parser: argparse.ArgumentParser, json_flag: bool = True) -> N
         )
 
 
+def add_job_arguments(parser: argparse.ArgumentParser) -> None:
+    """The positional job id and the connection options (the commands that act on one job)."""
+    parser.add_argument("job", help="job id")
+    add_connection(parser)
+
+
 def json_argument(value: str, option: str, inline: tuple[str, ...]) -> Any:
     """The JSON an option gives: ``value`` itself when it starts with one of ``inline`` (e.g.
     ``{``), else the file it names; InvalidInput naming ``option`` when unreadable or not
@@ -99,6 +105,19 @@ def guarded(args: argparse.Namespace, body: Callable[[], int]) -> int:
         return exit_code(exc)
     except KeyboardInterrupt:
         return 130
+
+
+def run_on_job(args: argparse.Namespace, act: Callable[[Client, str], tuple[str, str]]) -> int:
+    """Run ``act(client, job_id)`` under :func:`guarded`; it returns its outcome as a (JSON,
+    human-readable) pair of lines, and the one ``--json`` asks for is printed."""
+
+    def body() -> int:
+        with client(args) as c:
+            as_json, human = act(c, args.job)
+        print(as_json if args.json else human)
+        return 0
+
+    return guarded(args, body)
 
 
 def table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:

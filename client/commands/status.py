@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 
 from sparsesplat.api.jobs import Job
-from sparsesplat.client.commands.common import add_connection, client, dump, fmt_seconds, guarded
+from sparsesplat.client.commands.common import add_job_arguments, client, dump, fmt_seconds, guarded
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The job id."""
-    parser.add_argument("job", help="job id")
-    add_connection(parser)
+    add_job_arguments(parser)
 
 
 def describe(job: Job) -> str:
