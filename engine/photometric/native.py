@@ -62,22 +62,10 @@ def uses_native(pred: Tensor, *others: Tensor) -> bool:
 
 class _Photometric(torch.autograd.Function):
     @staticmethod
-    def forward(
-        ctx: Any,
-        pred: Tensor,
-        target: Tensor,
-        image: Tensor,
-        mu: Tensor,
-        var: Tensor,
-        weights: Tensor,
-        lambda_dssim: float,
-        c1: float,
-        c2: float,
-    ) -> Tensor:
+    def forward(ctx: Any, *args: Any) -> Tensor:
+        # args: photometric_native's, in its order (pred first: the only input with a gradient).
         need_grad = bool(ctx.needs_input_grad[0])
-        loss, grad = load_extension().forward(
-            pred, target, image, mu, var, weights, lambda_dssim, c1, c2, need_grad
-        )
+        loss, grad = load_extension().forward(*args, need_grad)
         if need_grad:
             ctx.save_for_backward(grad)
         return loss
