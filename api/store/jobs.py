@@ -245,13 +245,7 @@ class JobStore:
             updated = conn.execute(
                 jobs.update()
                 .where(jobs.c.id == row.id, jobs.c.state == JobState.queued.value)
-                .values(
-                    state=JobState.running.value,
-                    worker_id=worker_id,
-                    lease_until=now + lease_s,
-                    attempts=jobs.c.attempts + 1,
-                    started_at=sa.func.coalesce(jobs.c.started_at, now),
-                )
+                .values(**self._claim_values(worker_id, now + lease_s, now))
             )
             if updated.rowcount != 1:
                 return None
@@ -272,13 +266,7 @@ class JobStore:
             row = conn.execute(
                 jobs.update()
                 .where(jobs.c.id == job_id, jobs.c.state == JobState.queued.value)
-                .values(
-                    state=JobState.running.value,
-                    worker_id=worker_id,
-                    lease_until=now + lease_s,
-                    attempts=jobs.c.attempts + 1,
-                    started_at=sa.func.coalesce(jobs.c.started_at, now),
-                )
+                .values(**self._claim_values(worker_id, now + lease_s, now))
                 .returning(jobs.c.spec, jobs.c.attempts)
             ).first()
             if row is None:
@@ -427,6 +415,18 @@ class JobStore:
     def _select(owner: str | None) -> sa.Select[Any]:
         query = sa.select(jobs)
         return query if owner is None else query.where(jobs.c.owner == owner)
+
+    @staticmethod
+    def _claim_values(worker_id: str, lease_until: float, now: float) -> dict[str, Any]:
+        """The columns a claim sets on a queued job: running, held by ``worker_id`` until
+        ``lease_until``, one more attempt, started now unless it had started before."""
+        return {
+            "state": JobState.running.value,
+            "worker_id": worker_id,
+            "lease_until": lease_until,
+            "attempts": jobs.c.attempts + 1,
+            "started_at": sa.func.coalesce(jobs.c.started_at, now),
+        }
 
     @staticmethod
     def _update_held(
