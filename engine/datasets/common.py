@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -96,6 +97,36 @@ def load_view(
         alpha=torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32))
         if alpha is not None
         else None,
+    )
+
+
+def split_scene(
+    root: Path,
+    fmt: str,
+    views: tuple[list[View], list[View], Sequence[float]],
+    bounds: tuple[float, float],
+    box: Box | None,
+    split: tuple[list[int], list[int]],
+    **extra: Any,
+) -> Scene:
+    """The Scene a reader assembles from its parts, named after ``root``.
+
+    ``views``: the (train, test, background) triple (as :func:`on_default_background` returns
+    it); ``bounds``: near and far; ``box``: the initial box; ``split``: the (train, test) view
+    indices into the source; ``extra``: the other Scene fields a format supplies."""
+    train, test, background = views
+    return Scene(
+        name=root.name,
+        format=fmt,
+        train=train,
+        test=test,
+        background=torch.tensor(background),
+        near=bounds[0],
+        far=bounds[1],
+        init_box=box,
+        train_indices=split[0],
+        test_indices=split[1],
+        **extra,
     )
 
 

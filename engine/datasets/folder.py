@@ -34,6 +34,7 @@ from sparsesplat.engine.datasets.common import (
     load_view,
     look_at_bounds,
     on_default_background,
+    split_scene,
 )
 from sparsesplat.engine.datasets.splits import check_view_count
 from sparsesplat.engine.errors import SceneError
@@ -205,16 +206,7 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     box = meta.init_box or (
         seen.box if seen is not None else covisible_box(train_cams, train_near, train_far)
     )
-    return Scene(
-        name=root.name,
-        format="folder",
-        train=train,
-        test=test,
-        background=torch.tensor(background),
-        near=near,
-        far=far,
-        init_box=box,
-        train_indices=train_idx,
-        test_indices=test_idx,
+    return split_scene(
+        root, "folder", (train, test, background), (near, far), box, (train_idx, test_idx),
         sparse_points=read_sparse_points(root),
-    )
+    )  # fmt: skip

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
-
 from sparsesplat.api.scenes import llff as llff_format
 from sparsesplat.engine.camera_convert import cameras_from_llff
 from sparsesplat.engine.camera_path import spiral_cameras
-from sparsesplat.engine.datasets.common import covisible_box, load_view
+from sparsesplat.engine.datasets.common import covisible_box, load_view, split_scene
 from sparsesplat.engine.datasets.splits import llff_split
 from sparsesplat.engine.errors import CameraError, SceneError, reraise_as
 from sparsesplat.engine.images import image_size, list_images
@@ -55,16 +53,12 @@ def load_llff(root: Path, views: int, downscale: int = 1) -> Scene:
             path = spiral_cameras(poses, near, far, train[0].camera)
         except CameraError:
             pass  # a rig without an average viewing direction has no spiral; not fatal
-    return Scene(
-        name=root.name,
-        format="llff",
-        train=train,
-        test=test,
-        background=torch.tensor(background),
-        near=near,
-        far=far,
-        init_box=box,
-        train_indices=train_idx,
-        test_indices=test_idx,
+    return split_scene(
+        root,
+        "llff",
+        (train, test, background),
+        (near, far),
+        box,
+        (train_idx, test_idx),
         render_path=path,
     )

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
-
 from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.datasets.blender import frame_camera, frame_image_path, read_transforms
 from sparsesplat.engine.datasets.common import (
@@ -13,6 +11,7 @@ from sparsesplat.engine.datasets.common import (
     load_view,
     look_at_bounds,
     on_default_background,
+    split_scene,
 )
 from sparsesplat.engine.datasets.splits import llff_split
 from sparsesplat.engine.errors import SceneError, reraise_as
@@ -48,15 +47,6 @@ def load_ngp(root: Path, views: int, downscale: int = 1) -> Scene:
     train, test, background = on_default_background(
         [view(i) for i in train_idx], [view(i) for i in test_idx], BLACK
     )
-    return Scene(
-        name=root.name,
-        format="ngp",
-        train=train,
-        test=test,
-        background=torch.tensor(background),
-        near=near,
-        far=far,
-        init_box=box,
-        train_indices=train_idx,
-        test_indices=test_idx,
+    return split_scene(
+        root, "ngp", (train, test, background), (near, far), box, (train_idx, test_idx)
     )
