@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import base64
 import os
+import re
 import shutil
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +21,8 @@ from typing import Any
 import pytest
 
 from tests.service.live import LiveService
+from tests.service.scenes import MIC, write_mic_upload
+from tests.web.helpers import FORM_ITERATIONS, TERMINAL, TrainedJob
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "test-artifacts" / "web"
@@ -121,7 +125,7 @@ def image_bytes(page: Any, selector: str) -> bytes:
     return base64.b64decode(data_url.split(",", 1)[1])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="package")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveService]:
     """``sparsesplat serve`` (1 training + 1 render worker) on a free port, no API keys."""
     data = tmp_path_factory.mktemp("web") / "data"
@@ -135,3 +139,68 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveService]:
         if live.log.exists():
             ARTIFACTS.mkdir(parents=True, exist_ok=True)
             shutil.copy(live.log, ARTIFACTS / "service.log")
+
+
+@pytest.fixture(scope="package")
+def mic_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """3 training + 2 held-out views of the shared Blender mic at 100x100 (cameras.json)."""
+    if not MIC.is_dir():
+        pytest.skip(f"shared scene missing: {MIC}")
+    return write_mic_upload(tmp_path_factory.mktemp("mic") / "upload", size=100)
+
+
+@pytest.fixture(scope="package")
+def trained_job(
+    browser: Any, service: LiveService, mic_folder: Path, artifacts: Path
+) -> TrainedJob:
+    """Submit the mic upload through the form (60 iterations, a record every second), watch the
+    job page while it trains (dropping the WebSocket once), until the job ends."""
+    context, page, console = new_page(browser, service.url)
+    page.goto("/")
+    page.wait_for_selector("#job-form")
+    files = [mic_folder / "cameras.json", *sorted(mic_folder.glob("*.png"))]
+    page.set_input_files("#job-files", [str(f) for f in files])
+    page.wait_for_selector("#job-submit:not([disabled])")
+    summary = page.text_content("#upload-summary") or ""
+    assert "5 frames (3 training, 2 held-out)" in summary
+    assert "null" not in summary, summary
+    page.select_option("#job-length", "iterations")
+    # Long enough for several records at 1 s even on a quiet, fast machine: 30 iterations
+    # with a record every 3 s trained in under 3 s there and left the chart one live point.
+    page.fill("#job-length-value", str(FORM_ITERATIONS))
+    page.fill("#job-record-interval", "1")
+    page.click("#job-submit")
+    page.wait_for_url(re.compile(r"#/jobs/job_[0-9a-f]+$"))
+    job = TrainedJob(id=page.url.rsplit("/", 1)[1], state="queued")
+    page.wait_for_selector("#job-state .badge")
+    dropped = False
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        state = page.text_content("#job-state") or ""
+        points = int(page.get_attribute("#job-chart", "data-points") or 0)
+        job.seen.append((state, points))
+        if state == "running" and points >= 1 and not dropped:
+            page.evaluate("() => window.sparsesplat.events.drop()")  # as a network failure would
+            dropped = True
+        if state in TERMINAL:
+            break
+        time.sleep(0.5)
+    job.state = page.text_content("#job-state") or ""
+    if job.state != "succeeded":  # every test of the module needs the model: say why, fast
+        error = page.text_content("#job-error") or ""
+        page.screenshot(path=str(artifacts / "job-after-training.png"), full_page=True)
+        context.close()
+        pytest.fail(f"the smoke job {job.id} ended {job.state or 'unknown'}: {error}")
+    page.wait_for_function("() => document.querySelector('#job-live').dataset.status == 'finished'")
+    job.chart_points = int(page.get_attribute("#job-chart", "data-points") or 0)
+    job.connections = int(page.evaluate("() => window.sparsesplat.events.connections"))
+    job.api_key_in_session = page.evaluate("() => sessionStorage.getItem('sparsesplat.apiKey')")
+    page.wait_for_function(
+        "() => { const r = [...document.querySelectorAll('img.render')];"
+        " return r.length === 5 && r.every((i) => i.dataset.ready === '1'); }"
+    )
+    job.photos = page.locator("img.photo").count()
+    page.screenshot(path=str(artifacts / "job-after-training.png"), full_page=True)
+    job.console_errors = list(console.errors)
+    context.close()
+    return job
