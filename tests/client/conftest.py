@@ -14,11 +14,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import httpx
 import pytest
 
 from sparsesplat.api.jobs import Event, Job
 from sparsesplat.client import Client, Upload, read_scene
+from tests.service.live import answers
 
 REPO = Path(__file__).resolve().parents[2]
 MIC = REPO.parent / "shared" / "data" / "nerf_synthetic" / "mic"
@@ -123,17 +123,14 @@ def start_server(tmp: Path, ready: bool = True, **env: str) -> Server:
             stderr=subprocess.STDOUT,
         )
     server = Server(f"http://127.0.0.1:{port}", process, data, log)
-    deadline = time.monotonic() + 180
     path = "/readyz" if ready else "/healthz"
-    while time.monotonic() < deadline:
+
+    def alive() -> None:
         if process.poll() is not None:
             raise RuntimeError(f"server exited: {log.read_text()[-3000:]}")
-        try:
-            if httpx.get(server.url + path, timeout=2).status_code == 200:
-                return server
-        except httpx.TransportError:
-            pass
-        time.sleep(0.5)
+
+    if answers(server.url + path, 180, 0.5, alive):
+        return server
     server.stop()
     raise RuntimeError(f"server not ready in time: {log.read_text()[-3000:]}")
 

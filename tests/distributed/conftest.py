@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import itertools
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
@@ -19,6 +20,8 @@ from tests.service.live import LiveService
 from tests.service.scenes import MIC, write_mic_upload
 
 _names = itertools.count(1)
+
+_Server = TypeVar("_Server", PostgresServer, RedisServer)
 
 
 def _need_extra() -> None:
@@ -29,38 +32,32 @@ def _need_extra() -> None:
             pytest.skip(f"{module} missing: pip install 'sparsesplat[distributed]'")
 
 
-@pytest.fixture(scope="session")
-def postgres() -> Iterator[PostgresServer]:
-    """A PostgreSQL server private to this test session."""
+def _private_server(make: Callable[[], _Server], what: str) -> Iterator[_Server]:
+    """Start a server private to this test session; skip when ``what`` is unavailable."""
     _need_extra()
     try:
-        server = PostgresServer()
+        server = make()
     except (Unavailable, OSError) as exc:
-        pytest.skip(f"PostgreSQL unavailable: {exc}")
+        pytest.skip(f"{what} unavailable: {exc}")
     try:
         server.start()
     except (Unavailable, OSError) as exc:
         server.close()
-        pytest.skip(f"PostgreSQL unavailable: {exc}")
+        pytest.skip(f"{what} unavailable: {exc}")
     yield server
     server.close()
+
+
+@pytest.fixture(scope="session")
+def postgres() -> Iterator[PostgresServer]:
+    """A PostgreSQL server private to this test session."""
+    yield from _private_server(PostgresServer, "PostgreSQL")
 
 
 @pytest.fixture(scope="session")
 def redis_server() -> Iterator[RedisServer]:
     """A Redis server private to this test session (no persistence)."""
-    _need_extra()
-    try:
-        server = RedisServer()
-    except (Unavailable, OSError) as exc:
-        pytest.skip(f"Redis unavailable: {exc}")
-    try:
-        server.start()
-    except (Unavailable, OSError) as exc:
-        server.close()
-        pytest.skip(f"Redis unavailable: {exc}")
-    yield server
-    server.close()
+    yield from _private_server(RedisServer, "Redis")
 
 
 @pytest.fixture(scope="session")

@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -165,17 +166,10 @@ def compare_float32(
     )
 
 
-def assert_float32_close(
-    got: Tensor,
-    ref: Tensor,
-    torch32: Tensor,
-    terms: Tensor | float | None = None,
-    what: str = "",
-    factor: float = FACTOR,
-    floor_ulps: float = FLOOR_ULPS,
-) -> Float32Comparison:
-    """Assert the module rule for one tensor (see :func:`compare_float32`); returns the figures."""
-    result = compare_float32(got, ref, torch32, terms, what, factor, floor_ulps)
+def assert_float32_close(*args: Any, **kwargs: Any) -> Float32Comparison:
+    """Assert the module rule for one tensor; takes :func:`compare_float32`'s arguments and
+    returns its figures."""
+    result = compare_float32(*args, **kwargs)
     assert result.passed, result.message()
     return result
 

@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,21 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def answers(url: str, timeout: float, pause: float, alive: Callable[[], None]) -> bool:
+    """Poll ``url`` every ``pause`` s until it answers 200 (True) or ``timeout`` passes (False);
+    ``alive`` runs before each try and raises when the server process has died."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        alive()
+        try:
+            if httpx.get(url, timeout=2).status_code == 200:
+                return True
+        except httpx.TransportError:
+            pass
+        time.sleep(pause)
+    return False
 
 
 class LiveService:
@@ -77,29 +92,23 @@ class LiveService:
 
     def wait_healthy(self, timeout: float = 60) -> None:
         """Until ``/healthz`` answers."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.api is not None and self.api.poll() is not None:
-                raise RuntimeError(f"server exited with {self.api.returncode}: {self.tail()}")
-            try:
-                if httpx.get(self.url + "/healthz", timeout=2).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
-        raise TimeoutError(f"server not healthy after {timeout} s: {self.tail()}")
+        if not self._answers("/healthz", timeout, 0.2, watch_api=True):
+            raise TimeoutError(f"server not healthy after {timeout} s: {self.tail()}")
 
     def wait_ready(self, timeout: float = 120) -> None:
         """Until ``/readyz`` says a training and a render worker are up."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                if httpx.get(self.url + "/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.3)
-        raise TimeoutError(f"service not ready after {timeout} s: {self.tail()}")
+        if not self._answers("/readyz", timeout, 0.3, watch_api=False):
+            raise TimeoutError(f"service not ready after {timeout} s: {self.tail()}")
+
+    def _answers(self, path: str, timeout: float, pause: float, watch_api: bool) -> bool:
+        """:func:`answers` for ``path``; with ``watch_api``, an API process that exited raises
+        at once."""
+
+        def alive() -> None:
+            if watch_api and self.api is not None and self.api.poll() is not None:
+                raise RuntimeError(f"server exited with {self.api.returncode}: {self.tail()}")
+
+        return answers(self.url + path, timeout, pause, alive)
 
     def kill_api(self) -> None:
         """SIGKILL the API process (its workers, if separate, keep running)."""
