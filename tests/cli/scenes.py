@@ -102,3 +102,14 @@ def write_object_scene(
         edit(meta)
     (root / "cameras.json").write_text(json.dumps(meta, indent=1))
     return root
+
+
+def shrink_images(root: Path, which: str) -> None:
+    """Replace the images of a written scene by 1x1 pixels (``which``: "all" or "test", the
+    held-out views only), with matching intrinsics in its cameras.json."""
+    meta = json.loads((root / "cameras.json").read_text())
+    for f in meta["frames"]:
+        if which == "all" or f["split"] == "test":
+            Image.new("RGBA", (1, 1)).save(root / f["image"])
+            f.update(width=1, height=1, cx=0.5, cy=0.5)
+    (root / "cameras.json").write_text(json.dumps(meta))

@@ -15,7 +15,7 @@ from sparsesplat.engine.commands import train as train_cmd
 from sparsesplat.engine.train import PRESETS
 from sparsesplat.engine.train.presets import PRESET_ITERATIONS
 from tests.cli.conftest import SMOKE, run_cli, strict_json
-from tests.cli.scenes import write_object_scene
+from tests.cli.scenes import shrink_images, write_object_scene
 
 Meta = dict[str, Any]
 
@@ -92,14 +92,7 @@ def _reflect(m: Meta) -> None:
 
 def _tiny(which: str) -> Callable[[Path], None]:
     def shrink(root: Path) -> None:
-        from PIL import Image
-
-        meta = json.loads((root / "cameras.json").read_text())
-        for f in meta["frames"]:
-            if which == "all" or f["split"] == "test":
-                Image.new("RGBA", (1, 1)).save(root / f["image"])
-                f.update(width=1, height=1, cx=0.5, cy=0.5)
-        (root / "cameras.json").write_text(json.dumps(meta))
+        shrink_images(root, which)
 
     return shrink
 

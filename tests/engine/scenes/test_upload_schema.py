@@ -16,7 +16,7 @@ from PIL import Image
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.common import choose_preset, with_background
 from sparsesplat.engine.errors import SceneError
-from tests.cli.scenes import write_object_scene
+from tests.cli.scenes import shrink_images, write_object_scene
 from tests.engine.scenes.synthetic import write_folder_scene
 
 Meta = dict[str, Any]
@@ -107,12 +107,7 @@ def test_folder_loader_names_each_mistake(
 @pytest.mark.parametrize("which", ["held-out", "all"])
 def test_tiny_images_are_refused_up_front(tmp_path: Path, which: str) -> None:
     root = write_object_scene(tmp_path / "s", size=24)
-    meta = json.loads((root / "cameras.json").read_text())
-    for f in meta["frames"]:
-        if which == "all" or f["split"] == "test":
-            Image.new("RGBA", (1, 1)).save(root / f["image"])
-            f.update(width=1, height=1, cx=0.5, cy=0.5)
-    (root / "cameras.json").write_text(json.dumps(meta))
+    shrink_images(root, which)
     with pytest.raises(SceneError, match=r"image is 1x1 pixels; at least 16x16"):
         load_scene(root)
 
