@@ -9,7 +9,6 @@ One service (2 training nodes, 1 render worker) serves the module's tests in tur
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import time
@@ -19,16 +18,22 @@ from pathlib import Path
 import httpx
 import pytest
 import sqlalchemy as sa
-from websockets.sync.client import connect
 
 from sparsesplat.api.store.database import make_engine
 from tests.distributed.conftest import celery_env
 from tests.distributed.servers import PostgresServer, RedisServer
-from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
+from tests.service.live import (
+    FAST_SPEC,
+    TERMINAL,
+    LiveService,
+    assert_resumed_once,
+    job_events,
+    submit,
+    wait_state,
+)
 
 pytestmark = pytest.mark.shared_data
 
-TERMINAL = {"succeeded", "failed", "cancelled"}
 TRAIN_NODES = 2
 READY_TIMEOUT_S = 420
 
@@ -90,14 +95,8 @@ def cluster(
         cluster.engine.dispose()
 
 
-def _events(url: str, job_id: str) -> list[dict]:
-    ws_url = url.replace("http://", "ws://") + f"/v1/jobs/{job_id}/events?after=0"
-    with connect(ws_url, open_timeout=30) as ws:
-        return [json.loads(m) for m in ws]
-
-
 def _states(url: str, job_id: str) -> list[str]:
-    return [e["data"]["state"] for e in _events(url, job_id) if e["type"] == "state"]
+    return [e["data"]["state"] for e in job_events(url, job_id) if e["type"] == "state"]
 
 
 def _wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> None:
@@ -150,18 +149,7 @@ def test_killed_worker_process_job_is_redelivered_and_resumes_from_its_checkpoin
     os.kill(pid, signal.SIGKILL)  # the Celery pool process running the training
     saved = int(torch.load(checkpoint, weights_only=False)["iteration"])
 
-    done = wait_state(cluster.url, job["id"], TERMINAL, timeout=300)
-    assert done["state"] == "succeeded", cluster.live.tail()
-    assert done["attempts"] == 2, "run once more, not twice more"
-    events = _events(cluster.url, job["id"])
-    states = [(e["data"]["state"], e["data"]["message"]) for e in events if e["type"] == "state"]
-    assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
-    assert "stopped answering" in states[2][1] and "attempt 2" in states[3][1]
-    resumed_at = next(
-        i for i, e in enumerate(events) if e["data"].get("message", "").startswith("resumed")
-    )
-    after = [e["data"]["iteration"] for e in events[resumed_at:] if e["type"] == "progress"]
-    assert after and min(after) > saved >= 1, (saved, after[:5])
+    assert_resumed_once(cluster.url, job["id"], saved, cluster.live.tail)
     # A new pool process took the dead one's place and registered itself.
     cluster.wait_idle_workers()
     assert pid not in {w.pid for w in cluster.live_train_workers()}
@@ -181,7 +169,7 @@ def test_stopped_worker_node_hands_its_job_back_and_another_resumes_it(
     assert done["state"] == "succeeded", cluster.live.tail()
     states = [
         (e["data"]["state"], e["data"]["message"])
-        for e in _events(cluster.url, job["id"])
+        for e in job_events(cluster.url, job["id"])
         if e["type"] == "state"
     ]
     assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
@@ -247,7 +235,7 @@ def test_postgresql_restarted_api_answers_503_meanwhile_and_recovers(
     for job in (running, later):
         done = wait_state(cluster.url, job["id"], TERMINAL, timeout=300)
         assert done["state"] == "succeeded", (done, cluster.live.tail())
-        events = _events(cluster.url, job["id"])
+        events = job_events(cluster.url, job["id"])
         seqs = [e["seq"] for e in events]
         assert seqs == list(range(1, len(seqs) + 1)), "an event was lost or repeated"
     cluster.wait_idle_workers()

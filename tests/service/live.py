@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from websockets.sync.client import connect
 
 FAST_SETTINGS = {
     "SPARSESPLAT_HEARTBEAT_S": "0.5",
@@ -167,6 +168,37 @@ def wait_state(url: str, job_id: str, states: set[str], timeout: float = 300) ->
             return job
         time.sleep(0.3)
     raise TimeoutError(f"job {job_id} still {job.get('state')} after {timeout} s: {job}")
+
+
+TERMINAL = {"succeeded", "failed", "cancelled"}
+"""The job states that end a job."""
+
+
+def job_events(url: str, job_id: str) -> list[dict[str, Any]]:
+    """Every stored event of a finished job (the stream closes after the terminal state)."""
+    ws_url = url.replace("http://", "ws://") + f"/v1/jobs/{job_id}/events?after=0"
+    with connect(ws_url, open_timeout=30) as ws:
+        return [json.loads(m) for m in ws]
+
+
+def assert_resumed_once(url: str, job_id: str, saved: int, tail: Callable[[], str]) -> list[int]:
+    """The job whose worker was killed after its checkpoint at iteration ``saved`` ends
+    succeeded on attempt 2: requeued once ("stopped answering"), resumed, and the second attempt
+    continues from the checkpoint, never from zero. Returns the iterations reported after the
+    resume; ``tail`` gives the service log for a failure message."""
+    done = wait_state(url, job_id, TERMINAL, timeout=300)
+    assert done["state"] == "succeeded", tail()
+    assert done["attempts"] == 2, "run once more, not twice more"
+    events = job_events(url, job_id)
+    states = [(e["data"]["state"], e["data"]["message"]) for e in events if e["type"] == "state"]
+    assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
+    assert "stopped answering" in states[2][1] and "attempt 2" in states[3][1]
+    resumed_at = next(
+        i for i, e in enumerate(events) if e["data"].get("message", "").startswith("resumed")
+    )
+    after = [e["data"]["iteration"] for e in events[resumed_at:] if e["type"] == "progress"]
+    assert after and min(after) > saved >= 1, (saved, after[:5])
+    return after
 
 
 def processes_of(service: LiveService) -> Iterator[int]:

@@ -15,18 +15,17 @@ import pytest
 import torch
 from websockets.sync.client import connect
 
-from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
+from tests.service.live import (
+    FAST_SPEC,
+    TERMINAL,
+    LiveService,
+    assert_resumed_once,
+    job_events,
+    submit,
+    wait_state,
+)
 
 pytestmark = pytest.mark.shared_data
-
-TERMINAL = {"succeeded", "failed", "cancelled"}
-
-
-def _events(url: str, job_id: str) -> list[dict]:
-    """Every stored event of a finished job (the stream closes after the terminal state)."""
-    ws_url = url.replace("http://", "ws://") + f"/v1/jobs/{job_id}/events?after=0"
-    with connect(ws_url, open_timeout=30) as ws:
-        return [json.loads(m) for m in ws]
 
 
 def _wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> dict:
@@ -66,20 +65,8 @@ def test_killed_worker_job_is_requeued_and_resumes_from_its_checkpoint(
         time.sleep(0.2)
     os.kill(_worker_pid(live, job["id"]), signal.SIGKILL)
     saved = int(torch.load(checkpoint, weights_only=False)["iteration"])
-    done = wait_state(live.url, job["id"], TERMINAL, timeout=300)
-    assert done["state"] == "succeeded", live.tail()
-    assert done["attempts"] == 2
-
-    events = _events(live.url, job["id"])
-    states = [(e["data"]["state"], e["data"]["message"]) for e in events if e["type"] == "state"]
-    assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
-    assert "stopped answering" in states[2][1] and "attempt 2" in states[3][1]
-    resumed_at = next(
-        i for i, e in enumerate(events) if e["data"].get("message", "").startswith("resumed")
-    )
-    after = [e["data"]["iteration"] for e in events[resumed_at:] if e["type"] == "progress"]
     # The second attempt continues from the checkpoint; it never starts again from zero.
-    assert after and min(after) > saved >= 1
+    after = assert_resumed_once(live.url, job["id"], saved, live.tail)
     assert after[-1] <= 600
 
 
@@ -102,7 +89,7 @@ def test_api_restart_mid_stream_loses_and_repeats_nothing(live: LiveService, mic
     seqs = [e["seq"] for e in received]
     assert seqs == list(range(1, len(seqs) + 1)), "a gap or a duplicate across the restart"
     assert received[-1]["data"]["state"] == "succeeded"
-    assert received == _events(live.url, job["id"])
+    assert received == job_events(live.url, job["id"])
 
 
 def test_cancel_stops_a_running_job_and_delete_leaves_nothing(
