@@ -5,12 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from sparsesplat.api.scenes import transforms as transforms_format
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import camera_from_transforms_frame
-from sparsesplat.engine.datasets.common import load_view
+from sparsesplat.engine.datasets.common import load_view, split_scene
 from sparsesplat.engine.datasets.splits import blender_split
 from sparsesplat.engine.errors import CameraError, SceneError, reraise_as
 from sparsesplat.engine.images import image_size
@@ -60,15 +58,8 @@ def load_blender(root: Path, views: int, downscale: int = 1) -> Scene:
     )
     train = load_frames(root, "transforms_train.json", train_idx, downscale, WHITE)
     test = load_frames(root, "transforms_test.json", test_idx, downscale, WHITE)
-    return Scene(
-        name=root.name,
-        format="blender",
-        train=train,
-        test=test,
-        background=torch.tensor(WHITE),
-        near=transforms_format.BLENDER_NEAR,
-        far=transforms_format.BLENDER_FAR,
-        init_box=transforms_format.UNIT_CUBE,
-        train_indices=train_idx,
-        test_indices=test_idx,
-    )
+    return split_scene(
+        root, "blender", (train, test, WHITE),
+        (transforms_format.BLENDER_NEAR, transforms_format.BLENDER_FAR),
+        transforms_format.UNIT_CUBE, (train_idx, test_idx),
+    )  # fmt: skip

@@ -12,7 +12,7 @@ from sparsesplat.api.scenes import dtu as dtu_format
 from sparsesplat.api.scenes.transforms import UNIT_CUBE
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import camera_from_projection
-from sparsesplat.engine.datasets.common import load_view
+from sparsesplat.engine.datasets.common import load_view, split_scene
 from sparsesplat.engine.datasets.splits import dtu_split
 from sparsesplat.engine.errors import CameraError, SceneError, reraise_as
 from sparsesplat.engine.images import image_size, list_images
@@ -51,17 +51,8 @@ def load_dtu(root: Path, views: int, downscale: int = 1) -> Scene:
     test = [view(i) for i in test_idx]
     dists = [float(torch.linalg.norm(v.camera.center)) for v in train + test]
     near, far = dtu_format.bounds(dists)
-    return Scene(
-        name=root.name,
-        format="dtu",
-        train=train,
-        test=test,
-        background=torch.tensor(BLACK),
-        near=near,
-        far=far,
-        init_box=UNIT_CUBE,
-        train_indices=train_idx,
-        test_indices=test_idx,
+    return split_scene(
+        root, "dtu", (train, test, BLACK), (near, far), UNIT_CUBE, (train_idx, test_idx)
     )
 
 
