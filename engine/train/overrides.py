@@ -199,6 +199,10 @@ def describe(hint: Any) -> str:
     return getattr(hint, "__name__", str(hint))
 
 
+_SCALARS: dict[Any, Any] = {bool: bool, int: int, float: int | float, str: str}
+"""Scalar field type -> the value types it takes (an int widens to float)."""
+
+
 def coerce(hint: Any, value: Any) -> Any:
     """``value`` checked against ``hint`` and converted (int → float, list → tuple); raises
     ``_Mismatch`` when it does not fit."""
@@ -220,21 +224,10 @@ def coerce(hint: Any, value: Any) -> Any:
             except _Mismatch:
                 pass
         raise _Mismatch
-    if hint is bool:
-        if isinstance(value, bool):
-            return value
-        raise _Mismatch
-    if hint is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        raise _Mismatch
-    if hint is float:
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-        raise _Mismatch
-    if hint is str:
-        if isinstance(value, str):
-            return value
+    if hint in _SCALARS:
+        # bool is an int subclass: neither an int nor a float field takes one.
+        if isinstance(value, _SCALARS[hint]) and (hint is bool or not isinstance(value, bool)):
+            return float(value) if hint is float else value
         raise _Mismatch
     if origin is tuple:
         if not isinstance(value, list | tuple):
