@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 import threading
+from collections.abc import Callable
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -39,6 +40,19 @@ def exit_code(exc: BaseException) -> int:
 
     failed = (TrainingDiverged, RasterError, ModelCollapsed)
     return EXIT_FAILED if isinstance(exc, failed) else EXIT_BAD_INPUT
+
+
+def guarded(command: str, body: Callable[[], int]) -> int:
+    """Run ``body``; a :class:`CommandError` or a typed engine error becomes ``sparsesplat
+    COMMAND: message`` on stderr and its exit code (:func:`exit_code`)."""
+    from sparsesplat.engine.errors import EngineError
+
+    try:
+        return body()
+    except CommandError as exc:
+        return fail(command, str(exc))
+    except EngineError as exc:
+        return fail(command, str(exc), exit_code(exc))
 
 
 def check_device(device: str) -> str:

@@ -18,8 +18,7 @@ from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
-    exit_code,
-    fail,
+    guarded,
     prepare_native,
 )
 
@@ -119,14 +118,7 @@ def _output_path(value: str, suffixes: dict[str, str], what: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Render one view; 0 on success, 2 on a bad input (checkpoint, camera, path, device)."""
-    from sparsesplat.engine.errors import EngineError
-
-    try:
-        return _run(args)
-    except CommandError as exc:
-        return fail("render", str(exc))
-    except EngineError as exc:
-        return fail("render", str(exc), exit_code(exc))
+    return guarded("render", lambda: _run(args))
 
 
 def _run(args: argparse.Namespace) -> int:

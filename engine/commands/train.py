@@ -14,8 +14,7 @@ from typing import Any, TextIO
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
-    exit_code,
-    fail,
+    guarded,
     json_line,
     prepare_native,
 )
@@ -280,14 +279,7 @@ def run(args: argparse.Namespace) -> int:
     """Load the scene, choose the preset, compute priors, train, write ``OUT/metrics.json``.
 
     0 on success, 2 on bad input (scene, option, config), 1 when training fails."""
-    from sparsesplat.engine.errors import EngineError
-
-    try:
-        return _run(args)
-    except CommandError as exc:
-        return fail("train", str(exc))
-    except EngineError as exc:
-        return fail("train", str(exc), exit_code(exc))
+    return guarded("train", lambda: _run(args))
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -22,15 +22,8 @@ import sqlalchemy as sa
 from sparsesplat.api.store.database import make_engine
 from tests.distributed.conftest import celery_env
 from tests.distributed.servers import PostgresServer, RedisServer
-from tests.service.live import (
-    FAST_SPEC,
-    TERMINAL,
-    LiveService,
-    assert_resumed_once,
-    job_events,
-    submit,
-    wait_state,
-)
+from tests.service import live as service_live
+from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, wait_state
 
 pytestmark = pytest.mark.shared_data
 
@@ -96,7 +89,8 @@ def cluster(
 
 
 def _states(url: str, job_id: str) -> list[str]:
-    return [e["data"]["state"] for e in job_events(url, job_id) if e["type"] == "state"]
+    events = service_live.job_events(url, job_id)
+    return [e["data"]["state"] for e in events if e["type"] == "state"]
 
 
 def _wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> None:
@@ -149,7 +143,7 @@ def test_killed_worker_process_job_is_redelivered_and_resumes_from_its_checkpoin
     os.kill(pid, signal.SIGKILL)  # the Celery pool process running the training
     saved = int(torch.load(checkpoint, weights_only=False)["iteration"])
 
-    assert_resumed_once(cluster.url, job["id"], saved, cluster.live.tail)
+    service_live.assert_resumed_once(cluster.url, job["id"], saved, cluster.live.tail)
     # A new pool process took the dead one's place and registered itself.
     cluster.wait_idle_workers()
     assert pid not in {w.pid for w in cluster.live_train_workers()}
@@ -169,7 +163,7 @@ def test_stopped_worker_node_hands_its_job_back_and_another_resumes_it(
     assert done["state"] == "succeeded", cluster.live.tail()
     states = [
         (e["data"]["state"], e["data"]["message"])
-        for e in job_events(cluster.url, job["id"])
+        for e in service_live.job_events(cluster.url, job["id"])
         if e["type"] == "state"
     ]
     assert [s for s, _ in states] == ["queued", "running", "queued", "running", "succeeded"]
@@ -235,7 +229,7 @@ def test_postgresql_restarted_api_answers_503_meanwhile_and_recovers(
     for job in (running, later):
         done = wait_state(cluster.url, job["id"], TERMINAL, timeout=300)
         assert done["state"] == "succeeded", (done, cluster.live.tail())
-        events = job_events(cluster.url, job["id"])
+        events = service_live.job_events(cluster.url, job["id"])
         seqs = [e["seq"] for e in events]
         assert seqs == list(range(1, len(seqs) + 1)), "an event was lost or repeated"
     cluster.wait_idle_workers()

@@ -12,8 +12,8 @@ import httpx
 import pytest
 
 from tests.distributed.servers import PostgresServer
-from tests.distributed.test_celery_failures import TERMINAL, _events, _wait_progress
-from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
+from tests.distributed.test_celery_failures import _wait_progress
+from tests.service.live import FAST_SPEC, TERMINAL, LiveService, job_events, submit, wait_state
 
 pytestmark = pytest.mark.shared_data
 
@@ -45,7 +45,7 @@ def test_postgresql_restart_mid_job_pauses_the_job_instead_of_failing_it(
         done = wait_state(live.url, job["id"], TERMINAL, timeout=300)
         assert done["state"] == "succeeded", (done, live.tail())
         assert done["attempts"] == 1, "the outage failed the attempt"
-        seqs = [e["seq"] for e in _events(live.url, job["id"])]
+        seqs = [e["seq"] for e in job_events(live.url, job["id"])]
         assert seqs == list(range(1, len(seqs) + 1)), "an event was lost or repeated"
         answer = httpx.get(f"{live.url}/v1/jobs/{job['id']}", timeout=30)
         assert answer.status_code == 200
