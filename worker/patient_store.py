@@ -2,21 +2,36 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Concatenate, ParamSpec, TypeVar
 
 import sqlalchemy as sa
 
-from sparsesplat.api.jobs import JobState
 from sparsesplat.api.store.jobs import JobStore
 
 log = logging.getLogger("sparsesplat.worker")
 
 T = TypeVar("T")
+P = ParamSpec("P")
 PATIENT_RETRY_S = 0.5
 """Seconds between retries of a job's write while the database is unreachable."""
+
+
+def _retried(
+    method: Callable[Concatenate[JobStore, P], T],
+) -> Callable[Concatenate[PatientJobStore, P], T]:
+    """``method`` of :class:`JobStore` as a :class:`PatientJobStore` method: retried while the
+    database is away."""
+
+    @functools.wraps(method)
+    def patient(self: PatientJobStore, /, *args: P.args, **kwargs: P.kwargs) -> T:
+        return self._patiently(lambda: method(self, *args, **kwargs))
+
+    patient.__doc__ = f"``JobStore.{method.__name__}``, retried while the database is away."
+    return patient
 
 
 class PatientJobStore(JobStore):
@@ -44,23 +59,6 @@ class PatientJobStore(JobStore):
                 log.warning("database unreachable; retrying the write")
                 time.sleep(PATIENT_RETRY_S)
 
-    def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
-        """``JobStore.add_event``, retried while the database is away."""
-        return self._patiently(lambda: JobStore.add_event(self, job_id, type_, data))
-
-    def finish(
-        self,
-        job_id: str,
-        worker_id: str,
-        state: JobState,
-        message: str = "",
-        result: dict[str, Any] | None = None,
-    ) -> bool:
-        """``JobStore.finish``, retried while the database is away."""
-        return self._patiently(
-            lambda: JobStore.finish(self, job_id, worker_id, state, message, result)
-        )
-
-    def release(self, job_id: str, worker_id: str, message: str) -> None:
-        """``JobStore.release``, retried while the database is away."""
-        self._patiently(lambda: JobStore.release(self, job_id, worker_id, message))
+    add_event = _retried(JobStore.add_event)
+    finish = _retried(JobStore.finish)
+    release = _retried(JobStore.release)

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
+
+from sparsesplat.engine.train import TrainConfig, preset
 
 
 def look_at_c2w(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -53,3 +56,17 @@ def write_folder_scene(
     meta = {"convention": "opencv", "pose": "camera_to_world", "frames": frames}
     (root / "cameras.json").write_text(json.dumps(meta))
     return root
+
+
+def smoke_preset(name: str, iterations: int, **overrides: Any) -> TrainConfig:
+    """Preset ``name`` at smoke scale for ``iterations``: no depth prior, a small hash grid, no
+    evaluation, LPIPS or export; ``overrides`` on top."""
+    return preset(
+        name,
+        depth_prior="none",
+        hash_log2_size=14,
+        eval_interval_s=0,
+        eval_lpips=False,
+        export=False,
+        **overrides,
+    ).with_iterations(iterations)

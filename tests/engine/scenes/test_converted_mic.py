@@ -15,7 +15,8 @@ from PIL import Image
 
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.common import choose_preset
-from sparsesplat.engine.train import Trainer, preset
+from sparsesplat.engine.train import Trainer
+from tests.engine.scenes.synthetic import smoke_preset
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 SIZE = 100
@@ -71,17 +72,7 @@ def test_mic_converted_both_ways_trains_identically(shared_data: Path, tmp_path:
     assert choose_preset(gl)[0] == "object"
     corner = gl.train[0].image[0, 0]
     assert torch.allclose(corner, torch.ones(3)), "transparent pixels composited on white"
-    cfg = preset(
-        "object",
-        seed=0,
-        depth_prior="none",
-        init_points=500,
-        hash_log2_size=14,
-        eval_interval_s=0,
-        eval_lpips=False,
-        export=False,
-        threads=1,
-    ).with_iterations(15)
+    cfg = smoke_preset("object", 15, seed=0, init_points=500, threads=1)
     torch.set_num_threads(1)  # bit-identical runs (the fixture restores the thread count)
     a = Trainer(gl, cfg).run().metrics
     b = Trainer(cv, cfg).run().metrics

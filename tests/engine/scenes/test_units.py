@@ -8,22 +8,14 @@ from pathlib import Path
 import pytest
 
 from sparsesplat.engine.datasets import load_scene
-from sparsesplat.engine.train import Trainer, preset
+from sparsesplat.engine.train import Trainer
 from tests.cli.scenes import write_object_scene
+from tests.engine.scenes.synthetic import smoke_preset
 
 
 def _config():  # type: ignore[no-untyped-def]
     """The default preset's automatic initial count, compressed to smoke scale."""
-    return preset(
-        "default",
-        seed=3,
-        depth_prior="none",
-        hash_log2_size=14,
-        eval_interval_s=0,
-        eval_lpips=False,
-        export=False,
-        checkpoint_interval_s=0,
-    ).with_iterations(30)
+    return smoke_preset("default", 30, seed=3, checkpoint_interval_s=0)
 
 
 def test_millimetre_copy_trains_like_the_metre_copy(tmp_path: Path) -> None:
