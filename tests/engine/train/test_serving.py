@@ -18,21 +18,22 @@ from sparsesplat.engine.export.ply import read_ply
 from sparsesplat.engine.export.sh_eval import eval_sh
 from sparsesplat.engine.raster import rasterize
 from sparsesplat.engine.synthetic import make_scene
-from sparsesplat.engine.train import CheckpointError, TrainedModel, Trainer, load_model, preset
+from sparsesplat.engine.train import CheckpointError, TrainedModel, Trainer, load_model
 from sparsesplat.engine.train.recorder import render_model
+from tests.engine.train.test_trainer import small
 
 UNIT_ROUNDOFF = 2.0**-24
 
 
+SERVING_SCHEDULE: dict[str, Any] = {
+    "iterations": 20, "export": True, "lr_means_steps": 20, "soft_depth_start": 10,
+    "densify_from": 5, "densify_until": 15, "densify_interval": 5, "depth_smooth_start": 10,
+}  # fmt: skip
+"""test_trainer's smoke recipe at half its length, with the exports the serving tests read."""
+
+
 def _small(**overrides: Any):  # type: ignore[no-untyped-def]
-    base: dict[str, Any] = dict(
-        iterations=20, init_points=250, eval_interval_s=0, eval_lpips=False, export=True,
-        hash_log2_size=14, lr_means_start=0, lr_means_steps=20, soft_depth_start=10,
-        densify_from=5, densify_until=15, densify_interval=5, depth_smooth_start=10,
-        checkpoint_interval_s=0,
-    )  # fmt: skip
-    base.update(overrides)
-    return preset("llff", **base)
+    return small(**{**SERVING_SCHEDULE, **overrides})
 
 
 @pytest.fixture(scope="module")
