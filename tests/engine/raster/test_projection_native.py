@@ -365,7 +365,7 @@ def test_rasterize_cpu_matches_torch_projection_pipeline(seed: int) -> None:
     proj = project(*leaves[:4], cam, 0.01, 1e10, 0.3)
     proj.means2d.retain_grad()
     parts = [proj.means2d, proj.conics, proj.opacities, proj.depths, leaves[4], torch.zeros(3)]
-    image, depth, alpha, _ = _Blend.apply(*[t.contiguous() for t in parts], proj.radii, 41, 33)
+    image, depth, alpha, _, _ = _Blend.apply(*[t.contiguous() for t in parts], proj.radii, 41, 33)
     loss_of(image, depth, alpha).backward()
     assert proj.means2d.grad is not None
 
