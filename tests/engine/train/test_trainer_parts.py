@@ -305,7 +305,7 @@ def test_consistency_with_a_single_view_has_no_partner() -> None:
 
 
 def test_consistency_start_is_compressed_with_the_schedule() -> None:
-    cfg = preset("llff", consistency_weight=0.1, consistency_start=3000).with_iterations(150)
+    cfg = preset("llff", 1500, consistency_weight=0.1, consistency_start=3000).with_iterations(150)
     assert cfg.iterations == 150 and cfg.consistency.start == 300  # 3000 at 1500 iterations
 
 
