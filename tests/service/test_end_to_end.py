@@ -180,8 +180,9 @@ def _check_live_view(url: str, model_id: str, camera: dict, served: np.ndarray) 
         want = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), np.int16)
         assert np.array_equal(baked, want), "a baked live frame is the API's baked render"
 
-        # Six poses sent at once, each render taking milliseconds: the ones overtaken while a
-        # render runs are dropped, the newest is always rendered, in order.
+        # Six poses sent at once: the newest is always rendered, frames come in order, and every
+        # pose is either rendered or counted as dropped. Whether any is overtaken depends on how
+        # fast this machine renders, so the drop itself is tested in test_live_pose_queue.py.
         for t in range(10, 16):
             ws.send(json.dumps({"camera": camera, "t": t, "output": "jpeg"}))
         times = []
@@ -189,7 +190,7 @@ def _check_live_view(url: str, model_id: str, camera: dict, served: np.ndarray) 
             header, _ = frame(ws)
             times.append(header.t)
         assert times == sorted(times) and header.media == "image/jpeg"
-        assert len(times) + header.dropped == 6 and header.dropped >= 1, (times, header)
+        assert len(times) + header.dropped == 6, (times, header)
 
     nope = url.replace("http://", "ws://") + "/v1/models/nope/live"
     with connect(nope) as ws, pytest.raises(ConnectionClosed) as closed:
