@@ -164,6 +164,19 @@ static inline vf vexp(vf x) {
   return from_bits(bits_of(p) + (n << 23));
 }
 
+// 1 / x for x in [0.001, 1] (here 1 - alpha with alpha <= 0.999): the hardware reciprocal
+// estimate refined by one Newton step, r (2 - x r), to within about 2 ulp of the division. The
+// backward needs one per Gaussian-row; a vector division there cost more than the rest of the
+// transmittance bookkeeping.
+static inline vf vrcp(vf x) {
+#if RASTER_AVX512
+  const vf r = (vf)_mm512_rcp14_ps((__m512)x);
+#else
+  const vf r = vf{{(hf)_mm256_rcp_ps((__m256)x.h[0]), (hf)_mm256_rcp_ps((__m256)x.h[1])}};
+#endif
+  return r * (2.f - x * r);
+}
+
 // Pixel rows of the tile (relative, [r0, r1]) a Gaussian can reach; false when none.
 static inline bool row_range(const GaussRec& g, int y0, int rows, int& r0, int& r1) {
   const float lo = std::ceil(g.my - g.hy - 0.5f) - (float)y0;
@@ -174,15 +187,41 @@ static inline bool row_range(const GaussRec& g, int y0, int rows, int& r0, int& 
   return r0 <= r1;
 }
 
-// Whether the Gaussian's cull ellipse crosses row v (pixel centre v + 0.5) inside [x0, x0 + 16).
-static inline bool row_hits(const GaussRec& g, float dy, int x0) {
-  const float disc = g.two_a_t - g.det * dy * dy;
-  if (disc < 0.f) return false;
-  const float half = std::sqrt(disc) * g.inv_a;
-  const float cx = g.mx + g.b * dy * g.inv_a;  // centre of the row's x interval
-  const float ulo = std::ceil(cx - half - 0.5f);
-  const float uhi = std::floor(cx + half - 0.5f);
-  return uhi >= (float)x0 && ulo <= (float)(x0 + 15);
+#if RASTER_AVX512
+static inline vf vsqrt(vf x) { return (vf)_mm512_sqrt_ps((__m512)x); }
+static inline vf vceil(vf x) {
+  return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC);
+}
+static inline vf vfloor(vf x) {
+  return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+}
+#else
+static inline vf vsqrt(vf x) {
+  return vf{{(hf)_mm256_sqrt_ps((__m256)x.h[0]), (hf)_mm256_sqrt_ps((__m256)x.h[1])}};
+}
+static inline vf vceil(vf x) {
+  return vf{{(hf)_mm256_ceil_ps((__m256)x.h[0]), (hf)_mm256_ceil_ps((__m256)x.h[1])}};
+}
+static inline vf vfloor(vf x) {
+  return vf{{(hf)_mm256_floor_ps((__m256)x.h[0]), (hf)_mm256_floor_ps((__m256)x.h[1])}};
+}
+#endif
+
+// Bit r set for each tile row r in [r0, r1] whose pixel centres (v + 0.5) the Gaussian's cull
+// ellipse crosses inside [x0, x0 + 16): all 16 rows tested at once, one vector lane per row, so
+// the per-row loops below visit only rows that hit, without a data-dependent branch per row.
+// The cull keeps a margin (GaussRec::two_a_t), so rounding here never drops a pixel that passes
+// the alpha test.
+static inline uint32_t row_hit_mask(const GaussRec& g, int y0, int x0, int r0, int r1,
+                                    vf row_index) {
+  const vf dy = g.my - (row_index + ((float)y0 + 0.5f));
+  const vf disc = g.two_a_t - g.det * dy * dy;
+  const vi in_range = (row_index >= (float)r0) & (row_index <= (float)r1) & (disc >= 0.f);
+  const vf half = vsqrt(vmax(disc, vf{})) * g.inv_a;
+  const vf cx = g.mx + g.b * dy * g.inv_a;  // centre of each row's x interval
+  const vf ulo = vceil(cx - half - 0.5f);
+  const vf uhi = vfloor(cx + half - 0.5f);
+  return movemask(in_range & (uhi >= (float)x0) & (ulo <= (float)(x0 + 15)));
 }
 
 // Forward blending of one tile. acc is scratch of (C + 1) * 256 floats (64-byte aligned).
@@ -196,13 +235,14 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
   vf T[TILE];
   vi last[TILE];
   vi active[TILE];
-  vf lanex;
+  vf lanex, row_index;
   vi lane_in;
   for (int l = 0; l < TILE; ++l) {
     lanex[l] = (float)(x0 + l) + 0.5f;
+    row_index[l] = (float)l;
     lane_in[l] = l < cols ? -1 : 0;
   }
-  int live_rows = rows;
+  uint32_t live = rows >= 32 ? ~0u : (1u << rows) - 1;  // rows with a lane still blending
   for (int r = 0; r < TILE; ++r) {
     T[r] = splat(1.f);
     last[r] = vi{};
@@ -211,18 +251,19 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
   int64_t evaluated = 0, blended = 0;
   const int32_t begin = a.offsets[tile_y * a.tiles_x + tile_x];
   const int32_t end = a.offsets[tile_y * a.tiles_x + tile_x + 1];
-  for (int32_t j = begin; j < end && live_rows > 0; ++j) {
+  for (int32_t j = begin; j < end && live; ++j) {
     const int32_t rank = a.list[j];
     const GaussRec& g = a.recs[rank];
     int r0, r1;
     if (!row_range(g, y0, rows, r0, r1)) continue;
     const float* f = a.feats + (int64_t)rank * C;
+    uint32_t hits = row_hit_mask(g, y0, x0, r0, r1, row_index) & live;
+    if (!hits) continue;
     const vf dx = g.mx - lanex;
     const vf dx2 = 0.5f * g.a * dx * dx;
-    for (int r = r0; r <= r1; ++r) {
+    for (; hits; hits &= hits - 1) {
+      const int r = __builtin_ctz(hits);
       const float dy = g.my - ((float)(y0 + r) + 0.5f);
-      if (!row_hits(g, dy, x0)) continue;
-      if (!movemask(active[r])) continue;
       evaluated += TILE;
       const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
       const vf alpha = vmin(splat(0.999f), g.o * vexp(-power));
@@ -241,7 +282,7 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
       }
       if (movemask(stop)) {
         active[r] &= ~stop;
-        if (!movemask(active[r])) --live_rows;
+        if (!movemask(active[r])) live &= ~(1u << r);
       }
     }
   }
@@ -280,9 +321,12 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   vf* vop = gacc + S;                          // [16]: dL/ddepth of the opacity-only loss
   vf T[TILE], kbg[TILE];
   vi last[TILE];
-  int row_last[TILE];
-  vf lanex;
-  for (int l = 0; l < TILE; ++l) lanex[l] = (float)(x0 + l) + 0.5f;
+  vi row_last = vi{};  // per row (as a lane): 1 + the last list position any pixel blended
+  vf lanex, row_index;
+  for (int l = 0; l < TILE; ++l) {
+    lanex[l] = (float)(x0 + l) + 0.5f;
+    row_index[l] = (float)l;
+  }
   int max_last = 0;
   for (int r = 0; r < TILE; ++r) {
     T[r] = vf{};
@@ -321,13 +365,15 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     int r0, r1;
     if (!row_range(g, y0, rows, r0, r1)) continue;
     const float* f = a.feats + (int64_t)rank * C;
+    // Rows where some pixel blended this Gaussian or a later one, and the ellipse reaches.
+    uint32_t hits = row_hit_mask(g, y0, x0, r0, r1, row_index) & movemask(splati(jj) < row_last);
+    if (!hits) continue;
     const vf dx = g.mx - lanex;
     const vf dx2 = 0.5f * g.a * dx * dx;
     bool touched = false;
-    for (int r = r0; r <= r1; ++r) {
-      if (jj >= row_last[r]) continue;
+    for (; hits; hits &= hits - 1) {
+      const int r = __builtin_ctz(hits);
       const float dy = g.my - ((float)(y0 + r) + 0.5f);
-      if (!row_hits(g, dy, x0)) continue;
       const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
       const vf e = vexp(-power);
       const vf oe = g.o * e;
@@ -338,7 +384,7 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         for (int s = 0; s < S; ++s) gacc[s] = vf{};
         touched = true;
       }
-      const vf ra = 1.f / (1.f - alpha);
+      const vf ra = vrcp(1.f - alpha);
       const vf t_before = vsel(valid, T[r] * ra, T[r]);
       assign(T[r], t_before);
       const vf w = vsel(valid, alpha * t_before, vf{});
