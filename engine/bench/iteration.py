@@ -25,9 +25,11 @@ from sparsesplat.engine.bench.common import machine_info, write_results
 
 def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dict[str, float]:
     """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up)."""
+    from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
 
+    keep_freed_memory()  # as Trainer.run does
     scene, priors = make_scene(seed=0, width=width, height=height, n_gaussians=400)
     cfg = preset(
         "llff", init_points=n, profile=True, export=False, eval_interval_s=0,

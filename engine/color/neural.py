@@ -23,6 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from sparsesplat.engine.color.hashgrid import HashGrid
+from sparsesplat.engine.color.mlp import color_mlp
 from sparsesplat.engine.color.sh import sh_basis
 
 _OUT_SCALE = 1 + 2 * 0.001
@@ -132,5 +133,8 @@ class NeuralColorField(nn.Module):
         dirs = nn.functional.normalize(means - camera_center, dim=-1)
         w = _weight(self.color_mlp, 0)
         merged = w[:, 16:] @ _weight(self.sigma_mlp, 4)[1:]  # see the module docstring
-        pre = nn.functional.linear(self._sh(dirs), w[:, :16])
-        return self._head(torch.addmm(pre, self._hidden(self._encode(means)), merged.t()))
+        s = self.sigma_mlp
+        return color_mlp(
+            self._encode(means), self._sh(dirs), _weight(s, 0), _weight(s, 2), merged,
+            w[:, :16], _weight(self.color_mlp, 2), _OUT_SCALE, _OUT_SHIFT,
+        )  # fmt: skip

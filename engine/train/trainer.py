@@ -57,6 +57,7 @@ from sparsesplat.engine.losses import (
     scale_regularizer,
     shape_regularizer,
 )
+from sparsesplat.engine.malloc import keep_freed_memory
 from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.checkpoint import (
@@ -608,6 +609,7 @@ class Trainer:
         """Train to ``config.iterations``, or under ``config.time_budget_s`` until the budget
         is spent (or until the callback says stop); evaluate, save."""
         cfg = self.config
+        keep_freed_memory()  # reuse the step's large buffers (see engine/malloc.py)
         prev_threads = torch.get_num_threads()
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
