@@ -17,11 +17,11 @@ import json
 import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.names import VIDEO_SUFFIXES
-from sparsesplat.api.renders import RenderOutput
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, RenderOutput
 from sparsesplat.client.commands.common import add_connection, client, guarded, json_argument
 from sparsesplat.client.errors import InvalidInput, MissingExtra, RenderWarning, exit_code
 
@@ -50,6 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="what to render (default from the output suffix, else png)",
     )
     parser.add_argument("--downscale", type=int, default=1, help="divide the size by N")
+    parser.add_argument(
+        "--mode",
+        choices=list(get_args(RenderMode)),
+        default=DEFAULT_RENDER_MODE,
+        help="colours: neural (the model's own, exact; default) or baked (the view-independent "
+        "SH of the .ply export)",
+    )
     parser.add_argument("--arc", type=float, default=360.0, help="--orbit arc in degrees")
     parser.add_argument("--fps", type=float, default=30.0, help="video frame rate")
     local = parser.add_argument_group("local checkpoint (engine extra)")
@@ -107,6 +114,7 @@ def _local(args: argparse.Namespace) -> int:
         argv += ["--depth", args.depth]
     if args.device:
         argv += ["--device", args.device]
+    argv += ["--mode", args.mode]
     try:
         module = importlib.import_module(LOCAL_COMMAND)
         parser = argparse.ArgumentParser(prog="sparsesplat render")
@@ -145,17 +153,14 @@ def render(args: argparse.Namespace) -> int:
     with client(args) as c:
         model = c.model(args.target)
         cameras = _cameras(args, model)
+        options: dict[str, Any] = {"downscale": args.downscale, "mode": args.mode}
         if out.suffix.lower() in VIDEO_SUFFIXES:
-            written = [model.video(cameras, out, fps=args.fps, downscale=args.downscale)]
-        elif len(cameras) > 1 or (args.orbit and not out.suffix):
+            written = [model.video(cameras, out, fps=args.fps, **options)]
+        elif len(cameras) > 1 or not out.suffix:
             kind: RenderOutput = args.kind or "png"
-            written = model.render_path_to(cameras, out, kind, downscale=args.downscale)
-        elif out.suffix:
-            written = [model.render_to(cameras[0], out, output=args.kind, downscale=args.downscale)]
+            written = model.render_path_to(cameras, out, kind, **options)
         else:
-            written = model.render_path_to(
-                cameras, out, args.kind or "png", downscale=args.downscale
-            )
+            written = [model.render_to(cameras[0], out, output=args.kind, **options)]
     if args.json:
         print(json.dumps({"model": args.target, "files": [str(p) for p in written]}))
     else:

@@ -12,6 +12,8 @@ error mapping, the event stream's resume bookkeeping — lives once:
   ``events()``;
 - ``_client``  :class:`Client` and :class:`AsyncClient` (httpx + WebSocket I/O);
 - ``jobs``, ``models``  the handles, sync and async class side by side;
+- ``live``     :class:`LiveView` / :class:`AsyncLiveView`, a model's live view (poses in,
+  frames out over a WebSocket);
 - ``_output``  files, frames, DataFrames written from answers.
 
 Both clients accept an injectable httpx ``transport``, so tests and embedders can route
@@ -33,6 +35,7 @@ from sparsesplat.client.sdk._config import (
     Timeouts,
 )
 from sparsesplat.client.sdk.jobs import AsyncJobHandle, JobHandle
+from sparsesplat.client.sdk.live import AsyncLiveView, LiveView
 from sparsesplat.client.sdk.models import AsyncModelHandle, ModelHandle
 
 __all__ = [
@@ -43,12 +46,14 @@ __all__ = [
     "URL_ENV",
     "AsyncClient",
     "AsyncJobHandle",
+    "AsyncLiveView",
     "AsyncModelHandle",
     "Client",
     "EventCallback",
     "ExportFormat",
     "IdempotencyKey",
     "JobHandle",
+    "LiveView",
     "ModelHandle",
     "RetryPolicy",
     "Timeouts",

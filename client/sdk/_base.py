@@ -19,7 +19,7 @@ from pydantic import BaseModel, TypeAdapter, ValidationError
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.jobs import Job, JobPage, JobSpec, JobState, ModelInfo, Record
 from sparsesplat.api.names import ExportFormat
-from sparsesplat.api.renders import RENDER_WARNING_HEADER, RenderOutput
+from sparsesplat.api.renders import RENDER_WARNING_HEADER, RenderMode, RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
 from sparsesplat.client import media
 from sparsesplat.client.errors import (
@@ -204,12 +204,18 @@ class _Base:
             args["headers"] = call.headers
         return args
 
-    def _ws_url(self, job_id: str, after: int) -> str:
+    def _ws_base(self) -> str:
+        """The base URL with its scheme made ``ws`` / ``wss``."""
         base = self.base_url
         scheme = "wss" if base.startswith("https") else "ws"
-        return f"{scheme}{base[base.index(':') :]}/v1/jobs/{job_id}/events?" + urlencode(
-            {"after": after}
-        )
+        return f"{scheme}{base[base.index(':') :]}"
+
+    def _ws_url(self, job_id: str, after: int) -> str:
+        query = urlencode({"after": after})
+        return f"{self._ws_base()}/v1/jobs/{job_id}/events?{query}"
+
+    def _live_url(self, model_id: str) -> str:
+        return f"{self._ws_base()}/v1/models/{model_id}/live"
 
     # ------------------------------------------------------------ calls
 
@@ -302,8 +308,14 @@ class _Base:
         output: RenderOutput,
         downscale: int,
         quality: int,
+        mode: RenderMode,
     ) -> _Call[bytes]:
-        body: dict[str, Any] = {"output": output, "downscale": downscale, "quality": quality}
+        body: dict[str, Any] = {
+            "output": output,
+            "downscale": downscale,
+            "quality": quality,
+            "mode": mode,
+        }
         timeout = self.timeouts.render
         if path is not None:
             body["path"] = [_camera_json(c) for c in path]

@@ -1,5 +1,5 @@
 """Model handles: :class:`ModelHandle` and its asyncio twin :class:`AsyncModelHandle`, side by
-side (renders, camera paths, videos, exports)."""
+side (renders, camera paths, videos, the live view, exports)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from sparsesplat.api.cameras import PinholeCamera
 from sparsesplat.api.jobs import ModelInfo
 from sparsesplat.api.names import ExportFormat
-from sparsesplat.api.renders import RenderOutput
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, LiveOutput, RenderMode, RenderOutput
 from sparsesplat.client import cameras as cams
 from sparsesplat.client import media
 from sparsesplat.client.sdk._output import (
@@ -21,6 +21,7 @@ from sparsesplat.client.sdk._output import (
     write_file,
     write_frames,
 )
+from sparsesplat.client.sdk.live import AsyncLiveView, LiveView
 
 if TYPE_CHECKING:
     import numpy as np
@@ -52,20 +53,33 @@ class ModelHandle:
         *,
         downscale: int = 1,
         quality: int = 90,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> bytes:
-        """The encoded render (PNG/JPEG/WebP image, 16-bit depth PNG, .npy depth, alpha)."""
-        call = self.client._c_render(self.id, camera, None, output, downscale, quality)
+        """The encoded render (PNG/JPEG/WebP image, 16-bit depth PNG, .npy depth, alpha).
+        ``mode``: ``neural`` (the model's exact colours, the default) or ``baked`` (the
+        view-independent SH bake of the .ply export)."""
+        call = self.client._c_render(self.id, camera, None, output, downscale, quality, mode)
         return self.client._send(call)
 
-    def render(self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1) -> np.ndarray:
+    def render(
+        self,
+        camera: PinholeCamera | dict[str, Any],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
+    ) -> np.ndarray:
         """The render as an (H, W, 3) uint8 array (``images`` extra)."""
-        return media.decode_array(self.render_bytes(camera, downscale=downscale))
+        return media.decode_array(self.render_bytes(camera, downscale=downscale, mode=mode))
 
     def render_image(
-        self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1
+        self,
+        camera: PinholeCamera | dict[str, Any],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Image.Image:
         """The render as a PIL image (``images`` extra)."""
-        return media.decode_image(self.render_bytes(camera, downscale=downscale))
+        return media.decode_image(self.render_bytes(camera, downscale=downscale, mode=mode))
 
     def render_depth(
         self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1
@@ -80,10 +94,12 @@ class ModelHandle:
         *,
         output: RenderOutput | None = None,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Path:
         """Render into a file; the output follows the suffix (.png .jpg .webp .npy)."""
         path = Path(path)
-        data = self.render_bytes(camera, output_for(path, output), downscale=downscale)
+        kind = output_for(path, output)
+        data = self.render_bytes(camera, kind, downscale=downscale, mode=mode)
         return write_file(path, data)
 
     def render_path_bytes(
@@ -93,16 +109,21 @@ class ModelHandle:
         *,
         downscale: int = 1,
         quality: int = 90,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[bytes]:
         """Every camera of a path rendered in one request: the encoded frames, in order."""
-        call = self.client._c_render(self.id, None, cameras, output, downscale, quality)
+        call = self.client._c_render(self.id, None, cameras, output, downscale, quality, mode)
         return unzip_frames(self.client._send(call))
 
     def render_path(
-        self, cameras: Sequence[PinholeCamera | dict[str, Any]], *, downscale: int = 1
+        self,
+        cameras: Sequence[PinholeCamera | dict[str, Any]],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[np.ndarray]:
         """A camera path as (H, W, 3) uint8 arrays (``images`` extra)."""
-        frames = self.render_path_bytes(cameras, downscale=downscale)
+        frames = self.render_path_bytes(cameras, downscale=downscale, mode=mode)
         return [media.decode_array(f) for f in frames]
 
     def render_path_to(
@@ -112,9 +133,10 @@ class ModelHandle:
         output: RenderOutput = "png",
         *,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[Path]:
         """A camera path written as numbered files ``0000.png``… into ``folder``."""
-        frames = self.render_path_bytes(cameras, output, downscale=downscale)
+        frames = self.render_path_bytes(cameras, output, downscale=downscale, mode=mode)
         return write_frames(folder, frames, output)
 
     def orbit(
@@ -144,10 +166,26 @@ class ModelHandle:
         *,
         fps: float = 30.0,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Path:
         """Render a camera path and encode it as a video (.mp4…; ``video`` extra)."""
         media.require("imageio", "writing a video")
-        return media.write_video(self.render_path_bytes(cameras, downscale=downscale), path, fps)
+        frames = self.render_path_bytes(cameras, downscale=downscale, mode=mode)
+        return media.write_video(frames, path, fps)
+
+    def live(
+        self,
+        *,
+        output: LiveOutput = "jpeg",
+        quality: int = 85,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
+        downscale: int = 1,
+    ) -> LiveView:
+        """A live view (``/v1/models/{id}/live``): send poses, receive frames (a
+        :class:`~sparsesplat.api.renders.LiveFrame` header and the image bytes) as the
+        server renders them; only the newest waiting pose is rendered. Use it as a context
+        manager; see :class:`~sparsesplat.client.sdk.live.LiveView`."""
+        return LiveView(self.client, self.id, output, quality, mode, downscale)
 
     def export(self, format: ExportFormat, path: str | Path) -> Path:
         """Download the model as ``ply`` (INRIA layout), ``splat`` or ``checkpoint``."""
@@ -180,22 +218,33 @@ class AsyncModelHandle:
         *,
         downscale: int = 1,
         quality: int = 90,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> bytes:
         """See :meth:`ModelHandle.render_bytes`."""
-        call = self.client._c_render(self.id, camera, None, output, downscale, quality)
+        call = self.client._c_render(self.id, camera, None, output, downscale, quality, mode)
         return await self.client._send(call)
 
     async def render(
-        self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1
+        self,
+        camera: PinholeCamera | dict[str, Any],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> np.ndarray:
         """See :meth:`ModelHandle.render`."""
-        return media.decode_array(await self.render_bytes(camera, downscale=downscale))
+        data = await self.render_bytes(camera, downscale=downscale, mode=mode)
+        return media.decode_array(data)
 
     async def render_image(
-        self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1
+        self,
+        camera: PinholeCamera | dict[str, Any],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Image.Image:
         """See :meth:`ModelHandle.render_image`."""
-        return media.decode_image(await self.render_bytes(camera, downscale=downscale))
+        data = await self.render_bytes(camera, downscale=downscale, mode=mode)
+        return media.decode_image(data)
 
     async def render_depth(
         self, camera: PinholeCamera | dict[str, Any], *, downscale: int = 1
@@ -210,10 +259,12 @@ class AsyncModelHandle:
         *,
         output: RenderOutput | None = None,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Path:
         """See :meth:`ModelHandle.render_to`."""
         path = Path(path)
-        data = await self.render_bytes(camera, output_for(path, output), downscale=downscale)
+        kind = output_for(path, output)
+        data = await self.render_bytes(camera, kind, downscale=downscale, mode=mode)
         return write_file(path, data)
 
     async def render_path_bytes(
@@ -223,16 +274,21 @@ class AsyncModelHandle:
         *,
         downscale: int = 1,
         quality: int = 90,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[bytes]:
         """See :meth:`ModelHandle.render_path_bytes`."""
-        call = self.client._c_render(self.id, None, cameras, output, downscale, quality)
+        call = self.client._c_render(self.id, None, cameras, output, downscale, quality, mode)
         return unzip_frames(await self.client._send(call))
 
     async def render_path(
-        self, cameras: Sequence[PinholeCamera | dict[str, Any]], *, downscale: int = 1
+        self,
+        cameras: Sequence[PinholeCamera | dict[str, Any]],
+        *,
+        downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[np.ndarray]:
         """See :meth:`ModelHandle.render_path`."""
-        frames = await self.render_path_bytes(cameras, downscale=downscale)
+        frames = await self.render_path_bytes(cameras, downscale=downscale, mode=mode)
         return [media.decode_array(f) for f in frames]
 
     async def render_path_to(
@@ -242,9 +298,10 @@ class AsyncModelHandle:
         output: RenderOutput = "png",
         *,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> list[Path]:
         """See :meth:`ModelHandle.render_path_to`."""
-        frames = await self.render_path_bytes(cameras, output, downscale=downscale)
+        frames = await self.render_path_bytes(cameras, output, downscale=downscale, mode=mode)
         return write_frames(folder, frames, output)
 
     async def orbit(
@@ -273,11 +330,23 @@ class AsyncModelHandle:
         *,
         fps: float = 30.0,
         downscale: int = 1,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
     ) -> Path:
         """See :meth:`ModelHandle.video`."""
         media.require("imageio", "writing a video")
-        frames = await self.render_path_bytes(cameras, downscale=downscale)
+        frames = await self.render_path_bytes(cameras, downscale=downscale, mode=mode)
         return await asyncio.to_thread(media.write_video, frames, path, fps)
+
+    def live(
+        self,
+        *,
+        output: LiveOutput = "jpeg",
+        quality: int = 85,
+        mode: RenderMode = DEFAULT_RENDER_MODE,
+        downscale: int = 1,
+    ) -> AsyncLiveView:
+        """See :meth:`ModelHandle.live` (``async with model.live() as view``)."""
+        return AsyncLiveView(self.client, self.id, output, quality, mode, downscale)
 
     async def export(self, format: ExportFormat, path: str | Path) -> Path:
         """See :meth:`ModelHandle.export`."""

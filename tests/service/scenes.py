@@ -50,3 +50,19 @@ def write_mic_upload(folder: Path, size: int = 100) -> Path:
     cameras = {"convention": "opengl", "pose": "camera_to_world", "frames": frames}
     (folder / "cameras.json").write_text(json.dumps(cameras, indent=1))
     return folder
+
+
+def turn_held_out_cameras_around(folder: Path) -> Path:
+    """Rewrite the held-out frames of ``folder``'s cameras.json in the OpenCV convention while
+    the file still says OpenGL (as when held-out poses come from another tool): read as the file
+    says, each held-out camera looks away from the scene. The upload's pose checks look at the
+    training cameras and pass it; only training can find that those views render nothing."""
+    path = folder / "cameras.json"
+    cameras = json.loads(path.read_text())
+    assert cameras["convention"] == "opengl", cameras["convention"]
+    for frame in cameras["frames"]:
+        if frame.get("split") == "test":
+            # OpenGL -> OpenCV camera-to-world: negate the camera's y and z axes (columns 1, 2).
+            frame["matrix"] = [[r[0], -r[1], -r[2], r[3]] for r in frame["matrix"]]
+    path.write_text(json.dumps(cameras, indent=1))
+    return folder
