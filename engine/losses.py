@@ -284,7 +284,11 @@ def scale_regularizer(scales: Tensor) -> Tensor:
 def opacity_regularizer(opacity: Tensor, threshold: float = 0.2) -> Tensor:
     """1 - mean(a² | a > t) + mean((1 - a)² | a < t), empty selections contributing 0 (the
     reference's second term pushes low opacities up, kept as is; see method notes §6)."""
+    # Masked sums over the whole vector instead of boolean indexing: the same means without the
+    # gather and the scatter-back (index_put) in the backward.
     hi, lo = opacity > threshold, opacity < threshold
-    term_hi = 1.0 - opacity[hi].square().mean() if bool(hi.any()) else opacity.sum() * 0.0
-    term_lo = (1.0 - opacity[lo]).square().mean() if bool(lo.any()) else opacity.sum() * 0.0
+    n_hi, n_lo = int(hi.sum()), int(lo.sum())
+    zero = opacity.sum() * 0.0
+    term_hi = 1.0 - torch.where(hi, opacity.square(), 0.0).sum() / n_hi if n_hi else zero
+    term_lo = torch.where(lo, (1.0 - opacity).square(), 0.0).sum() / n_lo if n_lo else zero
     return term_hi + term_lo
