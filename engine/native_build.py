@@ -1,4 +1,5 @@
-"""Compile-once, load-many for the engine's C++/OpenMP extensions (rasterizer, hash grid).
+"""Compile-once, load-many for the engine's C++/OpenMP extensions (rasterizer, projection,
+hash grid, photometric loss), and the compiler flags they share.
 
 Each extension is built by ``torch.utils.cpp_extension.load`` at first use and reused by later
 processes. The build directory is keyed by content: ``<name>_<key>`` under
@@ -32,6 +33,15 @@ from types import ModuleType
 
 log = logging.getLogger(__name__)
 
+BASELINE_CFLAGS = ("-O3", "-mavx2", "-mfma", "-mf16c", "-fopenmp", "-fno-math-errno", "-std=c++17")
+"""Compiler flags every extension starts from: the portable x86-64-v3 baseline (AVX2, FMA,
+F16C) plus OpenMP. AVX-512 kernels live in translation units of their own, called only when the
+CPU reports AVX-512 at run time, so the build itself stays portable to any x86-64-v3 machine."""
+NO_FP_CONTRACT = "-ffp-contract=off"
+"""The flag that keeps every ``a * b + c`` two roundings (no fused multiply-add unless the
+source writes one), for kernels that must round as their torch reference does."""
+REQUIREMENTS = "needs g++ with AVX2 support and ninja"
+"""What every build needs; it heads the hint of a failed build's error."""
 HEADER_SUFFIXES = (".h", ".hpp")
 """Files of the source folder that are hashed and staged besides the listed sources."""
 LDFLAGS = ("-fopenmp",)
@@ -194,8 +204,9 @@ class NativeExtension:
     ) -> None:
         """``name`` prefixes the module and build directory names (the content key follows
         it); ``on_failure`` is the typed error raised (with the compiler's output tail) when the
-        build fails; ``failure_hint`` is appended to its message; ``description`` names the
-        extension in logs and errors."""
+        build fails; its message names :data:`REQUIREMENTS` and then ``failure_hint`` (what to
+        do instead, e.g. the switch to a torch implementation; empty for none); ``description``
+        names the extension in logs and errors."""
         self.name = name
         self.source_dir = source_dir
         self.sources = tuple(sources)
@@ -252,9 +263,10 @@ class NativeExtension:
                             verbose=False,
                         )
             except Exception as exc:  # the builder raises RuntimeError/CalledProcessError/OSError
+                hint = "; ".join(filter(None, (REQUIREMENTS, self.failure_hint)))
                 raise self.on_failure(
                     f"building the {self.description} from {self.source_dir} failed "
-                    f"({self.failure_hint}): {str(exc)[-4000:]}"
+                    f"({hint}): {str(exc)[-4000:]}"
                 ) from exc
             log.info("%s loaded from %s: %s kernels", self.description, build_dir, mod.variant())
             self._module = mod

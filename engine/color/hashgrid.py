@@ -31,6 +31,26 @@ BACKEND_ENV = "SPARSESPLAT_HASHGRID"
 _NATIVE_FEATURES = (1, 2, 4, 8)
 
 
+def vertex_weights(frac: Tensor, corners: Tensor) -> Tensor:
+    """Trilinear weights (N, L, 8) of the 8 vertices around each point, from its (N, L, 3)
+    position inside its cell: the product over the axes of ``frac`` (corner bit 1) or
+    ``1 - frac`` (bit 0). Any float dtype (the float64 test references use it too)."""
+    f = frac[:, :, None, :]
+    return torch.where(corners.bool(), f, 1.0 - f).prod(-1)
+
+
+def vertex_rows(vertices: Tensor, levels: dict[str, Tensor]) -> Tensor:
+    """Table rows (N, L, 8) of the (N, L, 8, 3) integer vertex coordinates: ``x + y s + z s^2``
+    on a densely indexed level (s its vertices per axis), else the XOR-of-primes hash; modulo
+    the level's size, plus its offset. ``levels``: :meth:`HashGrid._level_tables`."""
+    stride = levels["stride"][None, :, None]
+    x, y, z = vertices.unbind(-1)
+    dense_idx = x + y * stride + z * stride * stride
+    hashed = ((x * _PRIMES[0]) ^ (y * _PRIMES[1]) ^ (z * _PRIMES[2])) & 0xFFFFFFFF
+    index = torch.where(levels["dense"][None, :, None], dense_idx, hashed)
+    return index % levels["size"][None, :, None] + levels["offset"][None, :, None]
+
+
 class _Gather(torch.autograd.Function):
     """rows = table[index] with a backward that is one ``index_add_`` into a dense gradient
     (autograd's advanced-indexing backward is several times slower on CPU)."""
@@ -170,17 +190,8 @@ class HashGrid(nn.Module):
         pos = x[:, None, :] * c["scale"][None, :, None] + 0.5  # (N, L, 3)
         base = torch.floor(pos)
         frac = pos - base
-        grid = base.long()[:, :, None, :] + corners  # (N, L, 8, 3)
-        # Trilinear weights: product over axes of frac (corner bit 1) or 1 - frac (bit 0).
-        f = frac[:, :, None, :]
-        w = torch.where(corners.bool(), f, 1.0 - f).prod(-1)  # (N, L, 8)
-        stride = c["stride"][None, :, None]
-        dense_idx = grid[..., 0] + grid[..., 1] * stride + grid[..., 2] * stride * stride
-        hashed = (
-            (grid[..., 0] * _PRIMES[0]) ^ (grid[..., 1] * _PRIMES[1]) ^ (grid[..., 2] * _PRIMES[2])
-        ) & 0xFFFFFFFF
-        index = torch.where(c["dense"][None, :, None], dense_idx, hashed)
-        index = index % c["size"][None, :, None] + c["offset"][None, :, None]
+        w = vertex_weights(frac, corners)  # (N, L, 8)
+        index = vertex_rows(base.long()[:, :, None, :] + corners, c)  # (N, L, 8)
         rows = _Gather.apply(self.embeddings, index.reshape(-1)).reshape(*index.shape, -1)
         out = (w.unsqueeze(-1) * rows).sum(dim=2).reshape(x.shape[0], -1)
         return out * inside.to(out.dtype)

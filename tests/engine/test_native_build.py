@@ -152,3 +152,33 @@ def test_a_stale_build_lock_from_a_killed_process_does_not_block_loading(tmp_pat
     loaded = fresh.load()  # would hang here (the test's timeout) before the fix
     assert Path(str(loaded.__file__)) == Path(str(built.__file__))
     assert not stale.exists()
+
+
+def test_every_extension_builds_from_the_shared_baseline() -> None:
+    """One list of baseline flags (x86-64-v3 + OpenMP); the extensions that must round as
+    their torch references add only ``-ffp-contract=off``."""
+    exact = {raster_build._PROJECTION, color_build._EXTENSION, photometric_build._EXTENSION}
+    for ext in [raster_build._EXTENSION, *exact]:
+        extra = (native_build.NO_FP_CONTRACT,) if ext in exact else ()
+        assert ext.cflags == (*native_build.BASELINE_CFLAGS, *extra), ext.description
+
+
+def test_a_failed_build_names_the_requirements_and_the_way_out(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The typed error says what every build needs, then the extension's own hint."""
+    from torch.utils import cpp_extension
+
+    def fail(**_: object) -> None:
+        raise RuntimeError("g++: command not found")
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(cpp_extension, "load", fail)
+    src = _tree(tmp_path / "src", FILES)
+    ext = NativeExtension("t", src, ["a.cpp"], ["-O3"], RasterError, "set X=torch", "test ext")
+    with pytest.raises(RasterError) as info:
+        ext.load()
+    assert f"({native_build.REQUIREMENTS}; set X=torch): g++: command not found" in str(info.value)
+    bare = NativeExtension("t", src, ["a.cpp"], ["-O3"], RasterError, "", "test ext")
+    with pytest.raises(RasterError, match=r"\(needs g\+\+ with AVX2 support and ninja\): g\+\+"):
+        bare.load()

@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from sparsesplat.engine.color.hashgrid import _CORNERS, _PRIMES, HashGrid
+from sparsesplat.engine.color.hashgrid import HashGrid, vertex_rows, vertex_weights
 from sparsesplat.engine.color.neural import NeuralColorField
 from sparsesplat.engine.color.sh import sh_basis
 from tests.engine.numerics import DECISION_SAFETY, FLOOR_ULPS, UNIT_ROUNDOFF
@@ -31,17 +31,9 @@ def grid_reference(grid: HashGrid, x32: Tensor, x64: Tensor, table: Tensor) -> T
     x64 = torch.where(inside, x64, torch.zeros_like(x64))
     scale64 = c["scale"].double()[None, :, None]
     frac = x64[:, None, :] * scale64 + 0.5 - base.double()
-    corners = _CORNERS.to(x32.device)
-    cell = base.long()[:, :, None, :] + corners
-    f = frac[:, :, None, :]
-    w = torch.where(corners.bool(), f, 1.0 - f).prod(-1)
-    stride = c["stride"][None, :, None]
-    dense_idx = cell[..., 0] + cell[..., 1] * stride + cell[..., 2] * stride * stride
-    hashed = (
-        (cell[..., 0] * _PRIMES[0]) ^ (cell[..., 1] * _PRIMES[1]) ^ (cell[..., 2] * _PRIMES[2])
-    ) & 0xFFFFFFFF
-    index = torch.where(c["dense"][None, :, None], dense_idx, hashed)
-    index = index % c["size"][None, :, None] + c["offset"][None, :, None]
+    # forward_torch's own weight formula (here in float64) and vertex rows (integer decisions).
+    w = vertex_weights(frac, c["corners"])
+    index = vertex_rows(base.long()[:, :, None, :] + c["corners"], c)
     rows = table[index.reshape(-1)].reshape(*index.shape, -1)
     out = (w.unsqueeze(-1) * rows).sum(dim=2).reshape(x64.shape[0], -1)
     return out * inside.double()
