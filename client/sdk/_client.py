@@ -8,7 +8,6 @@ import asyncio
 import time
 from collections.abc import AsyncIterator, Iterator, Sequence
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import httpx
@@ -20,13 +19,14 @@ from sparsesplat.client.errors import APIError, ConnectionFailed, SparsesplatErr
 from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
 from sparsesplat.client.sdk._base import T, _Base, _Call
+from sparsesplat.client.sdk._closing import AsyncClosesOnExit, ClosesOnExit
 from sparsesplat.client.sdk._config import IdempotencyKey, RetryPolicy, Timeouts
 from sparsesplat.client.sdk._events import EventCursor
 from sparsesplat.client.sdk.jobs import AsyncJobHandle, JobHandle
 from sparsesplat.client.sdk.models import AsyncModelHandle, ModelHandle
 
 
-class Client(_Base):
+class Client(_Base, ClosesOnExit):
     """Blocking client. Use as a context manager or call :meth:`close`.
 
     Args:
@@ -246,16 +246,8 @@ class Client(_Base):
     def __enter__(self) -> Client:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
-
-class AsyncClient(_Base):
+class AsyncClient(_Base, AsyncClosesOnExit):
     """asyncio twin of :class:`Client` with the same methods as coroutines."""
 
     def __init__(
@@ -446,11 +438,3 @@ class AsyncClient(_Base):
 
     async def __aenter__(self) -> AsyncClient:
         return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        await self.aclose()

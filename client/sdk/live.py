@@ -16,7 +16,6 @@ import contextlib
 import json
 import time
 from collections.abc import AsyncIterator, Iterator
-from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from sparsesplat.api.cameras import PinholeCamera
@@ -34,6 +33,7 @@ from sparsesplat.client.errors import (
     ValidationFailed,
 )
 from sparsesplat.client.sdk._base import _camera_json
+from sparsesplat.client.sdk._closing import AsyncClosesOnExit, ClosesOnExit
 
 if TYPE_CHECKING:
     from websockets.asyncio.client import ClientConnection as AsyncConnection
@@ -51,6 +51,16 @@ _CLOSE_ERRORS: dict[int, tuple[type[APIError], int, str]] = {
     4503: (ServiceUnavailable, 503, "no_render_worker"),
 }
 """The server's close codes (server/routes/live.py) as the SDK's errors."""
+
+
+def _open_failed(url: str, exc: Exception) -> SparsesplatError:
+    """The SDK's error for a live view that could not be opened: a refused handshake (an HTTP
+    status instead of the upgrade) or no connection at all."""
+    from websockets.exceptions import InvalidStatus
+
+    if isinstance(exc, InvalidStatus):
+        return ServerError(exc.response.status_code, "live_refused", f"live view refused: {exc}")
+    return ConnectionFailed(f"cannot open the live view {url}: {exc}")
 
 
 class _LiveSession:
@@ -128,7 +138,7 @@ class _LiveSession:
         return Timeout(f"live view of {self.model_id!r}: no frame within {seconds} s")
 
 
-class LiveView(_LiveSession):
+class LiveView(_LiveSession, ClosesOnExit):
     """A live view on a model: send camera poses, receive server renders as they are ready.
 
     Open it with :meth:`ModelHandle.live <sparsesplat.client.sdk.models.ModelHandle.live>`
@@ -149,7 +159,7 @@ class LiveView(_LiveSession):
         return self
 
     def _open(self) -> ClientConnection:
-        from websockets.exceptions import InvalidStatus, WebSocketException
+        from websockets.exceptions import WebSocketException
         from websockets.sync.client import connect
 
         if self._ws is None:
@@ -158,12 +168,8 @@ class LiveView(_LiveSession):
             stack = contextlib.ExitStack()
             try:
                 self._ws = stack.enter_context(connect(self.url, **self._connect_args))
-            except InvalidStatus as exc:
-                raise ServerError(
-                    exc.response.status_code, "live_refused", f"live view refused: {exc}"
-                ) from exc
             except (OSError, WebSocketException) as exc:
-                raise ConnectionFailed(f"cannot open the live view {self.url}: {exc}") from exc
+                raise _open_failed(self.url, exc) from exc
             self._stack = stack
         return self._ws
 
@@ -211,16 +217,8 @@ class LiveView(_LiveSession):
     def __enter__(self) -> LiveView:
         return self.connect()
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
-
-class AsyncLiveView(_LiveSession):
+class AsyncLiveView(_LiveSession, AsyncClosesOnExit):
     """asyncio twin of :class:`LiveView` (``async with model.live() as view``)."""
 
     _ws: AsyncConnection | None = None
@@ -232,17 +230,13 @@ class AsyncLiveView(_LiveSession):
 
     async def _open(self) -> AsyncConnection:
         from websockets.asyncio.client import connect
-        from websockets.exceptions import InvalidStatus, WebSocketException
+        from websockets.exceptions import WebSocketException
 
         if self._ws is None:
             try:
                 self._ws = await connect(self.url, **self._connect_args)
-            except InvalidStatus as exc:
-                raise ServerError(
-                    exc.response.status_code, "live_refused", f"live view refused: {exc}"
-                ) from exc
             except (OSError, WebSocketException) as exc:
-                raise ConnectionFailed(f"cannot open the live view {self.url}: {exc}") from exc
+                raise _open_failed(self.url, exc) from exc
         return self._ws
 
     async def send(
@@ -286,11 +280,3 @@ class AsyncLiveView(_LiveSession):
 
     async def __aenter__(self) -> AsyncLiveView:
         return await self.connect()
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        await self.aclose()

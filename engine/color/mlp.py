@@ -23,7 +23,11 @@ def _relu_backward_(grad: Tensor, activation: Tensor) -> Tensor:
     return torch.ops.aten.threshold_backward.grad_input(grad, activation, 0.0, grad_input=grad)
 
 
-class _ColorMLP(torch.autograd.Function):
+class ColorMLP(torch.autograd.Function):
+    """``ColorMLP.apply(code, sh, w0, w1, merged, w_dir, w2, scale, shift)``: (N, 3) colours from
+    the (N, levels*features) grid code and the (N, 16) direction code, weights as ``nn.Linear``
+    stores them (out, in); differentiable in every tensor argument."""
+
     @staticmethod
     def forward(
         ctx: Any,
@@ -62,19 +66,3 @@ class _ColorMLP(torch.autograd.Function):
         g_w0 = g_h1.t() @ code if need[2] else None
         g_code = g_h1 @ w0 if need[0] else None
         return g_code, g_sh, g_w0, g_w1, g_merged, g_wdir, g_w2, None, None
-
-
-def color_mlp(
-    code: Tensor,
-    sh: Tensor,
-    w0: Tensor,
-    w1: Tensor,
-    merged: Tensor,
-    w_dir: Tensor,
-    w2: Tensor,
-    scale: float,
-    shift: float,
-) -> Tensor:
-    """(N, 3) colours from the (N, levels*features) grid code and the (N, 16) direction code;
-    weights as ``nn.Linear`` stores them (out, in). Differentiable in every tensor argument."""
-    return _ColorMLP.apply(code, sh, w0, w1, merged, w_dir, w2, scale, shift)

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from sparsesplat.engine.color.hashgrid import HashGrid
-from sparsesplat.engine.color.mlp import color_mlp
+from sparsesplat.engine.color.mlp import ColorMLP
 from sparsesplat.engine.color.sh import sh_basis
 
 _OUT_SCALE = 1 + 2 * 0.001
@@ -134,7 +134,7 @@ class NeuralColorField(nn.Module):
         w = _weight(self.color_mlp, 0)
         merged = w[:, 16:] @ _weight(self.sigma_mlp, 4)[1:]  # see the module docstring
         s = self.sigma_mlp
-        return color_mlp(
+        return ColorMLP.apply(
             self._encode(means), self._sh(dirs), _weight(s, 0), _weight(s, 2), merged,
             w[:, :16], _weight(self.color_mlp, 2), _OUT_SCALE, _OUT_SHIFT,
         )  # fmt: skip

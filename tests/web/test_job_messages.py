@@ -77,15 +77,21 @@ def _assert_wraps_inside(box: dict[str, Any], what: str) -> None:
     assert box["pageWidth"] <= box["window"], f"the page is wider than the window: {box}"
 
 
+def _job_page(browser: Any, service: LiveService, width: int, job_id: str) -> Any:
+    """(context, page, console) of a new page of ``width`` x 800 on the job's page."""
+    context, page, console = new_page(
+        browser, service.url, viewport={"width": width, "height": 800}
+    )
+    page.goto(f"/#/jobs/{job_id}")
+    return context, page, console
+
+
 @pytest.mark.parametrize("width", WIDTHS)
 def test_job_page_shows_the_warnings_wrapped_inside_the_page(
     browser: Any, service: LiveService, jobs: Any, width: int, artifacts: Path
 ) -> None:
     warned, _ = jobs
-    context, page, console = new_page(
-        browser, service.url, viewport={"width": width, "height": 800}
-    )
-    page.goto(f"/#/jobs/{warned['id']}")
+    context, page, console = _job_page(browser, service, width, warned["id"])
     page.wait_for_selector("#job-warnings:not([hidden]) p.warning-text")
     shown = page.locator("#job-warnings p.warning-text").all_text_contents()
     assert shown == [f"Warning: {w}" for w in warned["warnings"]]
@@ -101,10 +107,7 @@ def test_a_long_error_wraps_on_the_job_page_and_in_the_jobs_list(
     browser: Any, service: LiveService, jobs: Any, width: int, artifacts: Path
 ) -> None:
     _, failed = jobs
-    context, page, console = new_page(
-        browser, service.url, viewport={"width": width, "height": 800}
-    )
-    page.goto(f"/#/jobs/{failed['id']}")
+    context, page, console = _job_page(browser, service, width, failed["id"])
     page.wait_for_selector("#job-error:not([hidden])")
     assert page.text_content("#job-error") == failed["error"]
     _assert_wraps_inside(page.evaluate(_BOX, "#job-error"), "the job page's error")
