@@ -190,13 +190,19 @@ def depth_norm_loss(
     tgt = target if isinstance(target, DepthTarget) else DepthTarget(target)
     h, w = depth.shape[-2], depth.shape[-1]
     patch = max(1, min(patch, h, w))
+    prior = tgt.normalized(patch, mode)
+    if photometric_native.depth_norm_suited(depth, prior):
+        # One native pass for value and gradient (engine/photometric/cpu/depth_norm.cpp).
+        return photometric_native.depth_norm_native(
+            depth.reshape(h, w), prior, patch, margin, mode == "global", _STD_FLOOR
+        )
     pd = patchify(depth, patch)
     if mode == "local":
         nd = _normalize(pd, None)
     else:
         flat = depth.detach().reshape(-1)
         nd = _normalize(pd, _std(flat - flat.mean()))
-    return margin_mse(nd - tgt.normalized(patch, mode), margin)
+    return margin_mse(nd - prior, margin)
 
 
 def global_local_depth_loss(

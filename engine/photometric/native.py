@@ -1,4 +1,5 @@
-"""Autograd wrapper and backend choice of the native photometric loss (engine/photometric/cpu/).
+"""Autograd wrappers and backend choice of the native per-pixel losses (engine/photometric/cpu/):
+the photometric loss and the patch-normalized depth loss.
 
 The loss is a scalar, so the native forward computes the gradient with respect to the
 prediction in the same call and saves it; the backward only scales it by the upstream scalar.
@@ -103,3 +104,53 @@ def photometric_native(
         float(c1),
         float(c2),
     )
+
+
+class _DepthNorm(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, depth: Tensor, *args: Any) -> Tensor:
+        need_grad = bool(ctx.needs_input_grad[0])
+        loss, grad = load_extension().depth_norm_forward(depth, *args, need_grad)
+        if need_grad:
+            ctx.save_for_backward(grad)
+        return loss
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, upstream: Tensor) -> tuple[Tensor | None, ...]:
+        (grad,) = ctx.saved_tensors
+        return (grad * upstream, *([None] * 5))
+
+
+def depth_norm_suited(depth: Tensor, target: Tensor) -> bool:
+    """Whether the patch-normalized depth loss of ``depth`` against the prior's normalized
+    patches ``target`` runs natively: float32 CPU tensors, a target without gradient, unless
+    $SPARSESPLAT_PHOTOMETRIC says torch (``native`` makes unsuited inputs an error)."""
+    choice = backend()
+    if choice == "torch":
+        return False
+    suited = (
+        depth.device.type == "cpu"
+        and target.device.type == "cpu"
+        and depth.dtype == torch.float32
+        and target.dtype == torch.float32
+        and not target.requires_grad
+    )
+    if choice == "native" and not suited:
+        raise ValueError(
+            f"${BACKEND_ENV}=native needs float32 CPU depth and target without gradient; got "
+            f"{depth.dtype} on {depth.device} and {target.dtype} on {target.device}"
+        )
+    return suited
+
+
+def depth_norm_native(
+    depth: Tensor, target: Tensor, patch: int, margin: float, global_mode: bool, std_floor: float
+) -> Tensor:
+    """``engine.losses.depth_norm_loss`` of a float32 CPU (H, W) ``depth`` against ``target``,
+    the prior's normalized (P, patch²) patches, differentiable with respect to ``depth``;
+    ``patch`` already clamped to 1..min(H, W)."""
+    return _DepthNorm.apply(
+        depth.contiguous(), target.detach().contiguous(), int(patch), float(margin),
+        bool(global_mode), float(std_floor),
+    )  # fmt: skip

@@ -323,7 +323,14 @@ std::string variant_name() { return "avx2"; }
 
 }  // namespace
 
+// Patch-normalized depth loss, depth_norm.cpp.
+std::vector<torch::Tensor> depth_norm_forward(torch::Tensor depth, torch::Tensor target,
+                                              int64_t patch, double margin, bool global_mode,
+                                              double std_floor, bool need_grad);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("depth_norm_forward", &depth_norm_forward,
+        "Patch-normalized depth loss of a (H, W) depth: (loss, d loss / d depth or undefined)");
   m.def("forward", &forward,
         "L1 + lambda * (1 - SSIM) of (C, H, W) images: (loss, d loss / d pred or undefined)");
   m.def("variant", &variant_name, "Instruction-set level the extension was built for");

@@ -75,3 +75,89 @@ def test_constant_patches_give_a_finite_gradient() -> None:
         loss = depth_norm_loss(d, prior, 6, 0.0, mode)
         (grad,) = torch.autograd.grad(loss, d)
         assert bool(torch.isfinite(loss)) and bool(torch.isfinite(grad).all())
+
+
+def _depth_norm_runs(
+    d: torch.Tensor, prior: torch.Tensor, patch: int, margin: float, mode: str
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """(loss, gradient) of depth_norm_loss: native float32, float64 reference, torch float32."""
+    import os
+
+    runs = []
+    for dtype, impl in ((torch.float32, "native"), (torch.float64, "torch"),
+                        (torch.float32, "torch")):  # fmt: skip
+        os.environ["SPARSESPLAT_PHOTOMETRIC"] = impl
+        try:
+            x = d.to(dtype).requires_grad_(True)
+            loss = depth_norm_loss(x, DepthTarget(prior.to(dtype)), patch, margin, mode)
+            (grad,) = torch.autograd.grad(loss, x)
+        finally:
+            del os.environ["SPARSESPLAT_PHOTOMETRIC"]
+        runs.append((loss.detach(), grad))
+    return runs
+
+
+@pytest.mark.parametrize("mode", ["global", "local"])
+@pytest.mark.parametrize(("shape", "patch"), [((378, 504), 5), ((378, 504), 17), ((61, 47), 11),
+                                              ((23, 30), 40)])  # fmt: skip
+@pytest.mark.parametrize("seed", [0, 1])
+def test_native_depth_norm_loss_matches_float64(
+    mode: str, shape: tuple[int, int], patch: int, seed: int
+) -> None:
+    """The native patch-normalized depth loss (engine/photometric/cpu/depth_norm.cpp): value and
+    gradient within the float32 rule of the torch definition run in float64, with torch's
+    float32 run as the scale; pixels outside the patch grid get no gradient. The margin keeps
+    about half of the residuals and none lies within 1e-5 of it, so float32 and float64 keep
+    the same ones."""
+    from tests.engine.numerics import assert_float32_close
+
+    g = torch.Generator().manual_seed(seed)
+    d = torch.rand(*shape, generator=g) * 3 + 1
+    prior = torch.rand(*shape, generator=g) * 2 + 1
+    # A margin away from every residual (float64), near the median so that both sides count.
+    p = max(1, min(patch, *shape))
+    # The residuals, recomputed here from the definition in float64.
+    tgt = DepthTarget(prior.double())
+    pd = patchify(d.double(), p)
+    centred = pd - pd.mean(dim=1, keepdim=True)
+    every = pd - pd.mean()
+    eps = max(0.01 * float(every.square().sum() / (every.numel() - 1)) ** 0.5, 1e-8)
+    if mode == "local":
+        scale = (centred.square().sum(dim=1, keepdim=True) / (p * p - 1)).sqrt()
+    else:
+        flat = d.double().reshape(-1)
+        scale = torch.tensor(float((flat - flat.mean()).square().sum() / (flat.numel() - 1)) ** 0.5)
+    r = (centred / (scale + eps) - tgt.normalized(p, mode)).abs().reshape(-1).sort().values
+    gaps = r[1:] - r[:-1]
+    middle = len(r) // 2 + int(gaps[len(r) // 2 : len(r) // 2 + 2000].argmax())
+    margin = float(r[middle] + r[middle + 1]) / 2
+    # float32 puts a residual of size ~1 within ~1e-6 of its float64 value.
+    assert float(gaps[middle]) > 2e-5, "no clear gap near the median"
+    (got, g_got), (ref, g_ref), (t32, g_t32) = _depth_norm_runs(d, prior, patch, margin, mode)
+    assert_float32_close(got.reshape(1), ref.reshape(1), t32.reshape(1), what=f"loss {mode}")
+    assert_float32_close(g_got, g_ref, g_t32, g_ref.abs().max(), f"gradient {mode} p={patch}")
+    rows, cols = (shape[0] // p) * p, (shape[1] // p) * p
+    assert float(g_got[rows:].abs().sum() + g_got[:, cols:].abs().sum()) == 0.0
+
+
+def test_native_depth_norm_loss_edge_cases() -> None:
+    """A constant map: a finite gradient and the reference's loss; a margin above every
+    residual: zero loss and gradient; the result does not depend on the thread count."""
+    flat = torch.full((30, 40), 2.0)
+    prior = torch.rand(30, 40, generator=torch.Generator().manual_seed(3)) + 1
+    for mode in ("global", "local"):
+        (loss, grad), *_ = _depth_norm_runs(flat, prior, 5, 1e9, mode)
+        assert float(loss) == 0.0 and float(grad.abs().sum()) == 0.0
+        (loss, grad), (ref, _), _ = _depth_norm_runs(flat, prior, 5, 1e-4, mode)
+        assert torch.isfinite(grad).all() and abs(float(loss) - float(ref)) <= 1e-5 * float(ref)
+    d = torch.rand(378, 504, generator=torch.Generator().manual_seed(4)) + 1
+    results = []
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            results.append(_depth_norm_runs(d, prior.repeat(13, 13)[:378, :504], 7, 1e-3,
+                                            "local")[0])  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(results[0][0], results[1][0]) and torch.equal(results[0][1], results[1][1])
