@@ -61,21 +61,25 @@ def uses_native(pred: Tensor, *others: Tensor) -> bool:
     return suited
 
 
-class _Photometric(torch.autograd.Function):
+class _NativeLoss(torch.autograd.Function):
+    """A scalar loss whose native kernel returns (value, d value / d first input) in one call;
+    the backward only scales the saved gradient by the upstream scalar."""
+
     @staticmethod
-    def forward(ctx: Any, *args: Any) -> Tensor:
-        # args: photometric_native's, in its order (pred first: the only input with a gradient).
-        need_grad = bool(ctx.needs_input_grad[0])
-        loss, grad = load_extension().forward(*args, need_grad)
+    def forward(ctx: Any, kernel: str, x: Tensor, *args: Any) -> Tensor:
+        # x: the only input with a gradient; args: the kernel's other arguments, in its order.
+        need_grad = bool(ctx.needs_input_grad[1])
+        loss, grad = getattr(load_extension(), kernel)(x, *args, need_grad)
         if need_grad:
             ctx.save_for_backward(grad)
+        ctx.n_args = len(args)
         return loss
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, upstream: Tensor) -> tuple[Tensor | None, ...]:
         (grad,) = ctx.saved_tensors
-        return (grad * upstream, *([None] * 8))
+        return (None, grad * upstream, *([None] * ctx.n_args))
 
 
 def photometric_native(
@@ -93,7 +97,8 @@ def photometric_native(
     images, differentiable with respect to ``pred``. ``mu`` and ``var``: ``image``'s blurred
     mean and variance under the separable window ``weights`` (odd length); ``c1``, ``c2``: SSIM's
     stabilizing constants."""
-    return _Photometric.apply(
+    return _NativeLoss.apply(
+        "forward",
         pred.contiguous(),
         target.detach().contiguous(),
         image.detach().contiguous(),
@@ -104,22 +109,6 @@ def photometric_native(
         float(c1),
         float(c2),
     )
-
-
-class _DepthNorm(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx: Any, depth: Tensor, *args: Any) -> Tensor:
-        need_grad = bool(ctx.needs_input_grad[0])
-        loss, grad = load_extension().depth_norm_forward(depth, *args, need_grad)
-        if need_grad:
-            ctx.save_for_backward(grad)
-        return loss
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx: Any, upstream: Tensor) -> tuple[Tensor | None, ...]:
-        (grad,) = ctx.saved_tensors
-        return (grad * upstream, *([None] * 5))
 
 
 def depth_norm_suited(depth: Tensor, target: Tensor) -> bool:
@@ -150,7 +139,7 @@ def depth_norm_native(
     """``engine.losses.depth_norm_loss`` of a float32 CPU (H, W) ``depth`` against ``target``,
     the prior's normalized (P, patch²) patches, differentiable with respect to ``depth``;
     ``patch`` already clamped to 1..min(H, W)."""
-    return _DepthNorm.apply(
-        depth.contiguous(), target.detach().contiguous(), int(patch), float(margin),
-        bool(global_mode), float(std_floor),
+    return _NativeLoss.apply(
+        "depth_norm_forward", depth.contiguous(), target.detach().contiguous(), int(patch),
+        float(margin), bool(global_mode), float(std_floor),
     )  # fmt: skip
