@@ -43,7 +43,8 @@ class ColorMLP(torch.autograd.Function):
     ) -> Tensor:
         h1 = torch.relu_(code @ w0.t())
         h2 = torch.relu_(h1 @ w1.t())
-        h3 = torch.relu_(torch.addmm(sh @ w_dir.t(), h2, merged.t()))
+        # In place: an out-of-place addmm would first copy its (N, 64) input.
+        h3 = torch.relu_((sh @ w_dir.t()).addmm_(h2, merged.t()))
         s = torch.sigmoid(h3 @ w2.t())
         ctx.save_for_backward(code, sh, w0, w1, merged, w_dir, w2, h1, h2, h3, s)
         ctx.scale = scale

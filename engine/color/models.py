@@ -36,8 +36,15 @@ class ColorModel:
         """Adam groups for the model's global parameters (named; empty for SH)."""
         return []
 
-    def colors(self, gaussians: Gaussians, camera_center: Tensor) -> Tensor:
-        """(N, 3) colours for a view from ``camera_center`` (differentiable training path)."""
+    def colors(
+        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+    ) -> Tensor:
+        """(N, 3) colours for a view from ``camera_center`` (differentiable training path);
+        with ``keep`` (an (N,) bool mask) only the (K, 3) colours of those rows, in order.
+
+        Each Gaussian's colour depends on its own parameters only, so colouring just the rows a
+        render uses (DropGaussian's kept ones) gives those rows the same colours and gradients
+        and skips the field's work on the rest."""
         raise NotImplementedError
 
     def color_fn(self, gaussians: Gaussians) -> Callable[[Tensor], Tensor]:
@@ -94,9 +101,12 @@ class NeuralColor(ColorModel):
             {"name": "color_mlp", "params": list(f.color_mlp.parameters()), "lr": lrs["mlp"]},
         ]
 
-    def colors(self, gaussians: Gaussians, camera_center: Tensor) -> Tensor:
+    def colors(
+        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+    ) -> Tensor:
         """Full field evaluation; gradients reach the centres through grid and direction."""
-        return self.field(gaussians.means, camera_center)
+        means = gaussians.means if keep is None else gaussians.means[keep]
+        return self.field(means, camera_center)
 
     def geo_features(self, gaussians: Gaussians) -> Tensor:
         """(N, 64) geometry features without grad, to cache for inference."""
@@ -184,10 +194,16 @@ class SHColor(ColorModel):
             return torch.cat([dc, gaussians.params["sh_rest"]], dim=1)
         return dc
 
-    def colors(self, gaussians: Gaussians, camera_center: Tensor) -> Tensor:
+    def colors(
+        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+    ) -> Tensor:
         """3DGS colour: SH evaluated along (mu - camera), + 0.5, clamped at 0."""
-        dirs = nn.functional.normalize(gaussians.means - camera_center, dim=-1)
-        return eval_sh(self._coeffs(gaussians), dirs, self.active_degree)
+        means: Tensor = gaussians.means
+        coeffs = self._coeffs(gaussians)
+        if keep is not None:
+            means, coeffs = means[keep], coeffs[keep]
+        dirs = nn.functional.normalize(means - camera_center, dim=-1)
+        return eval_sh(coeffs, dirs, self.active_degree)
 
     def color_fn(self, gaussians: Gaussians) -> Callable[[Tensor], Tensor]:
         """SH colours for arbitrary directions (exact, nothing to bake)."""

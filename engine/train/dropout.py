@@ -11,15 +11,16 @@ Where it runs in an iteration (the photometric pass only, dngaussian-method.md Â
 
     rate = schedule.rate(iteration, total_iterations)
     drop = draw_dropout(len(gaussians), rate, generator, device)
-    colors = color_model.colors(gaussians, cam.center)
+    colors = color_model.colors(gaussians, cam.center, drop.keep)   # kept rows only
     out = rasterize(drop.select(means), drop.select(log_scales), drop.select(quats),
-                    drop.opacity_logits(opacity_logits), drop.select(colors), cam, bg)
+                    drop.opacity_logits(opacity_logits), colors, cam, bg)
     loss(out.image, gt).backward()
     grad2d = drop.scatter(out.means2d.grad)     # (N, 2), zero for dropped Gaussians
     visible = drop.scatter(out.radii) > 0        # dropped Gaussians count as not visible
 
 Rendering only the kept rows (instead of zeroing dropped opacities) is the same image and
-saves ``r`` of the rasterizer's work.
+saves ``r`` of the rasterizer's work; colouring only the kept rows saves ``r`` of the colour
+field's.
 
 Deviation, forced by the rasterizer taking opacity *logits*: a compensated opacity cannot
 exceed 1, while the reference multiplies the activated opacity and lets the rasterizer clamp

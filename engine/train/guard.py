@@ -26,6 +26,20 @@ STEP_CHECK_FROM = 10
 """Step sizes are judged from this iteration on (Adam's first steps are large by design)."""
 
 
+def all_finite(t: Tensor) -> bool:
+    """Whether every entry of ``t`` is finite.
+
+    The sum is finite whenever every entry is (unless finite entries near float32's limit
+    overflow it), and NaN or infinite as soon as one entry is, so it settles the common case
+    in one read of the tensor: ~1 ms for the 12M-value hash table where ``isfinite(t).all()``
+    takes ~40 ms (it writes a bool per entry). Only a non-finite sum pays the exact check."""
+    if t.numel() == 0:
+        return True
+    if bool(torch.isfinite(t.sum())):
+        return True
+    return bool(torch.isfinite(t).all())
+
+
 def _group_lr(optimizer: torch.optim.Optimizer, name: str) -> float:
     return float(next(gr["lr"] for gr in optimizer.param_groups if gr["name"] == name))
 
@@ -54,7 +68,7 @@ class DivergenceGuard:
 
     def check_finite(self, value: Tensor, what: str, iteration: int) -> None:
         """TrainingDiverged unless every entry of ``value`` (a detached loss) is finite."""
-        if not bool(torch.isfinite(value).all()):
+        if not all_finite(value):
             raise TrainingDiverged(
                 f"training diverged at step {iteration}: {what} is not finite "
                 f"(try lower learning rates; optim.lr_means_init={self.lr_means_init})"
@@ -116,7 +130,7 @@ class DivergenceGuard:
                 t = p.grad if grads else p
                 if t is None:
                     continue
-                if not bool(torch.isfinite(t).all()):
+                if not all_finite(t):
                     kind = "gradient" if grads else "value"
                     raise TrainingDiverged(
                         f"training diverged at step {iteration}: parameter group "

@@ -535,12 +535,12 @@ class Trainer:
         if self.dtu is not None:  # DTU background alpha, own optimizer step
             self.dtu.step_pre_photometric(it, g, opt, view, self.guard, timer)
 
-        # Pass 3: photometric.
-        colors = self.color.colors(g, view.camera.center)
+        # Pass 3: photometric. Only the Gaussians DropGaussian keeps are coloured and rendered.
+        drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
+        colors = self.color.colors(g, view.camera.center, None if drop is None else drop.keep)
         timer.tick("neural_fwd")
         # Profiling splits the colour field's backward from the rasterizer's.
         leaf = colors.detach().requires_grad_(True) if cfg.record.profile else colors
-        drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
         inputs: tuple[Tensor, ...]
         if drop is None:
             inputs = (g.means, g.log_scales, g.quats, g.opacity_logits, leaf)
@@ -550,7 +550,7 @@ class Trainer:
                 drop.select(g.log_scales),
                 drop.select(g.quats),
                 drop.opacity_logits(g.opacity_logits),
-                drop.select(leaf),
+                leaf,
             )
         fused_soft = self.depth is not None and self.depth.wants_fused_soft(it, view)
         out = self._raster(*inputs, view.camera, self.background, opacity_depth=fused_soft)

@@ -207,6 +207,9 @@ static inline vf vfloor(vf x) {
 }
 #endif
 
+// How many list entries ahead the blend loops prefetch a Gaussian's record and features.
+constexpr int32_t kPrefetch = 8;
+
 // Bit r set for each tile row r in [r0, r1] whose pixel centres (v + 0.5) the Gaussian's cull
 // ellipse crosses inside [x0, x0 + 16): all 16 rows tested at once, one vector lane per row, so
 // the per-row loops below visit only rows that hit, without a data-dependent branch per row.
@@ -252,6 +255,12 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
   const int32_t begin = a.offsets[tile_y * a.tiles_x + tile_x];
   const int32_t end = a.offsets[tile_y * a.tiles_x + tile_x + 1];
   for (int32_t j = begin; j < end && live; ++j) {
+    // The list visits records in depth order but far apart in memory: fetch ahead.
+    if (j + kPrefetch < end) {
+      const int32_t ahead = a.list[j + kPrefetch];
+      __builtin_prefetch(a.recs + ahead);
+      __builtin_prefetch(a.feats + (int64_t)ahead * C);
+    }
     const int32_t rank = a.list[j];
     const GaussRec& g = a.recs[rank];
     int r0, r1;
@@ -360,6 +369,12 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   }
   const int32_t begin = a.offsets[tile_y * a.tiles_x + tile_x];
   for (int32_t jj = max_last - 1; jj >= 0; --jj) {
+    if (jj >= kPrefetch) {  // as in the forward, and the gradient row written at the end
+      const int32_t ahead = a.list[begin + jj - kPrefetch];
+      __builtin_prefetch(a.recs + ahead);
+      __builtin_prefetch(a.feats + (int64_t)ahead * C);
+      __builtin_prefetch(grad + (int64_t)ahead * S, 1);
+    }
     const int32_t rank = a.list[begin + jj];
     const GaussRec& g = a.recs[rank];
     int r0, r1;

@@ -156,3 +156,40 @@ def test_empty_model_and_everything_dropped() -> None:
     assert not bool(drop.keep.any())
     assert drop.opacity_logits(torch.zeros(2)).shape == (0,)
     assert drop.scatter(torch.zeros(0, 2)).shape == (2, 2)
+
+
+@pytest.mark.parametrize("kind", ["neural", "sh"])
+def test_colouring_only_the_kept_rows_matches_colouring_all(kind: str) -> None:
+    """``colors(..., keep)``: the kept rows' colours and centre gradients as with every row
+    coloured, and no gradient on the dropped rows."""
+    from sparsesplat.engine.color.models import NeuralColor, SHColor
+    from sparsesplat.engine.gaussians import Gaussians
+
+    g = torch.Generator().manual_seed(3)
+    n = 3000
+    points = torch.rand(n, 3, generator=g) * 2 - 1
+    model: NeuralColor | SHColor
+    extra: dict[str, torch.Tensor] = {}
+    if kind == "neural":
+        model = NeuralColor.create(points, g, log2_table_size=14)
+    else:
+        model = SHColor(3, 1, 3)
+        extra = model.init_per_gaussian(n, g)
+        extra["sh_rest"] = torch.randn(n, 15, 3, generator=g) * 0.1
+    gauss = Gaussians.from_points(points, 0.1, extra)
+    center = torch.tensor([0.2, -0.1, -4.0])
+    keep = draw_dropout(n, 0.3, g).keep
+    up = torch.rand(int(keep.sum()), 3, generator=g)
+
+    full = model.colors(gauss, center)
+    (full[keep] * up).sum().backward()
+    grad_full = gauss.means.grad.clone()
+    gauss.means.grad = None
+    part = model.colors(gauss, center, keep)
+    (part * up).sum().backward()
+
+    assert part.shape == (int(keep.sum()), 3)
+    # Row-wise the same computation; only the matrix products' blocking may round differently.
+    torch.testing.assert_close(part, full[keep].detach(), rtol=0, atol=1e-6)
+    torch.testing.assert_close(gauss.means.grad, grad_full, rtol=1e-5, atol=1e-7)
+    assert not bool(gauss.means.grad[~keep].any())
