@@ -37,10 +37,10 @@ class ColorModel:
         return []
 
     def colors(
-        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+        self, gaussians: Gaussians, camera_center: Tensor, rows: Tensor | None = None
     ) -> Tensor:
         """(N, 3) colours for a view from ``camera_center`` (differentiable training path);
-        with ``keep`` (an (N,) bool mask) only the (K, 3) colours of those rows, in order.
+        with ``rows`` ((K,) int64 row indices) only the (K, 3) colours of those rows, in order.
 
         Each Gaussian's colour depends on its own parameters only, so colouring just the rows a
         render uses (DropGaussian's kept ones) gives those rows the same colours and gradients
@@ -102,10 +102,10 @@ class NeuralColor(ColorModel):
         ]
 
     def colors(
-        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+        self, gaussians: Gaussians, camera_center: Tensor, rows: Tensor | None = None
     ) -> Tensor:
         """Full field evaluation; gradients reach the centres through grid and direction."""
-        means = gaussians.means if keep is None else gaussians.means[keep]
+        means = gaussians.means if rows is None else gaussians.means.index_select(0, rows)
         return self.field(means, camera_center)
 
     def geo_features(self, gaussians: Gaussians) -> Tensor:
@@ -195,13 +195,13 @@ class SHColor(ColorModel):
         return dc
 
     def colors(
-        self, gaussians: Gaussians, camera_center: Tensor, keep: Tensor | None = None
+        self, gaussians: Gaussians, camera_center: Tensor, rows: Tensor | None = None
     ) -> Tensor:
         """3DGS colour: SH evaluated along (mu - camera), + 0.5, clamped at 0."""
         means: Tensor = gaussians.means
         coeffs = self._coeffs(gaussians)
-        if keep is not None:
-            means, coeffs = means[keep], coeffs[keep]
+        if rows is not None:
+            means, coeffs = means.index_select(0, rows), coeffs.index_select(0, rows)
         dirs = nn.functional.normalize(means - camera_center, dim=-1)
         return eval_sh(coeffs, dirs, self.active_degree)
 

@@ -537,7 +537,7 @@ class Trainer:
 
         # Pass 3: photometric. Only the Gaussians DropGaussian keeps are coloured and rendered.
         drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
-        colors = self.color.colors(g, view.camera.center, None if drop is None else drop.keep)
+        colors = self.color.colors(g, view.camera.center, None if drop is None else drop.index)
         timer.tick("neural_fwd")
         # Profiling splits the colour field's backward from the rasterizer's.
         leaf = colors.detach().requires_grad_(True) if cfg.record.profile else colors

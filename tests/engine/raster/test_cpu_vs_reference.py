@@ -30,7 +30,7 @@ from .helpers import (
 )
 
 
-@pytest.mark.parametrize("channels", [3, 1, 0])
+@pytest.mark.parametrize("channels", [3, 1, 0, 9, 12])
 def test_random_scenes_match_reference(channels: int, seed: int) -> None:
     """Outputs and all five gradients within the float32 rule of the float64 reference."""
     gs = random_gaussians(120, seed, channels=channels)

@@ -160,7 +160,7 @@ def test_empty_model_and_everything_dropped() -> None:
 
 @pytest.mark.parametrize("kind", ["neural", "sh"])
 def test_colouring_only_the_kept_rows_matches_colouring_all(kind: str) -> None:
-    """``colors(..., keep)``: the kept rows' colours and centre gradients as with every row
+    """``colors(..., rows)``: the kept rows' colours and centre gradients as with every row
     coloured, and no gradient on the dropped rows."""
     from sparsesplat.engine.color.models import NeuralColor, SHColor
     from sparsesplat.engine.gaussians import Gaussians
@@ -178,14 +178,15 @@ def test_colouring_only_the_kept_rows_matches_colouring_all(kind: str) -> None:
         extra["sh_rest"] = torch.randn(n, 15, 3, generator=g) * 0.1
     gauss = Gaussians.from_points(points, 0.1, extra)
     center = torch.tensor([0.2, -0.1, -4.0])
-    keep = draw_dropout(n, 0.3, g).keep
+    drop = draw_dropout(n, 0.3, g)
+    keep = drop.keep
     up = torch.rand(int(keep.sum()), 3, generator=g)
 
     full = model.colors(gauss, center)
     (full[keep] * up).sum().backward()
     grad_full = gauss.means.grad.clone()
     gauss.means.grad = None
-    part = model.colors(gauss, center, keep)
+    part = model.colors(gauss, center, drop.index)
     (part * up).sum().backward()
 
     assert part.shape == (int(keep.sum()), 3)
