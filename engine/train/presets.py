@@ -76,8 +76,8 @@ PRESETS: dict[str, dict[str, Any]] = {
 """Preset name → dotted field overrides on top of the TrainConfig defaults."""
 
 PRESET_ITERATIONS: dict[str, int] = {
-    "llff": 4000,
-    "default": 4000,
+    "llff": 5000,
+    "default": 5000,
     "blender": 1500,
     "object": 1500,
     "dtu": 1500,
