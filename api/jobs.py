@@ -72,8 +72,9 @@ class JobSpec(BaseModel):
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) for targets and renders; None: from the scene."""
     init: InitName | None = None
-    """Initial Gaussians (``random``, ``dense``, or ``sparse``: the points triangulated when
-    the cameras were estimated from the photos); None: the preset's."""
+    """Initial Gaussians (``random``, ``dense``, ``sparse``: the points triangulated when
+    the cameras were estimated from the photos, or ``auto``: ``dense`` for forward-facing
+    cameras, ``random`` for an orbit); None: the preset's."""
     dropout: bool | None = None
     """DropGaussian: drop a random share of Gaussians in each photometric pass, compensating
     the rest's opacity (a prior-free sparse-view regulariser); None: the preset's."""

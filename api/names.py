@@ -17,11 +17,12 @@ alpha (inward-looking cameras), ``default`` user uploads (LLFF recipe)."""
 ColorModelName = Literal["neural", "sh"]
 """Colour model: DNGaussian's neural colour field, or per-Gaussian spherical harmonics."""
 
-InitName = Literal["random", "dense", "sparse"]
+InitName = Literal["random", "dense", "sparse", "auto"]
 """Initial Gaussians: ``random`` points in a box around the cameras' view (the method's),
 ``dense`` points back-projected from the confident pixels of a plane-sweep depth of the
-uploaded views themselves, or ``sparse`` the points of the camera estimation (photos uploaded
-without cameras)."""
+uploaded views themselves, ``sparse`` the points of the camera estimation (photos uploaded
+without cameras), or ``auto``: ``dense`` when the cameras face forward, ``random`` when they
+look inward."""
 
 TERMINAL_JOB_STATES: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
 """Job states a job never leaves (``api.jobs.JobState`` values)."""

@@ -19,12 +19,20 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 from sparsesplat.engine.bench.common import machine_info, write_results
 
 
-def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dict[str, float]:
-    """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up)."""
+def measure(
+    n: int,
+    iterations: int,
+    width: int = 504,
+    height: int = 378,
+    overrides: dict[str, Any] | None = None,
+) -> dict[str, float]:
+    """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up) of the
+    ``llff`` preset, with dotted-field ``overrides`` (``--set``) on top."""
     from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
@@ -33,7 +41,7 @@ def measure(n: int, iterations: int, width: int = 504, height: int = 378) -> dic
     scene, priors = make_scene(seed=0, width=width, height=height, n_gaussians=400)
     cfg = preset(
         "llff", init_points=n, profile=True, export=False, eval_interval_s=0,
-        densify_until=0, clean_iterations=(), iterations=10_000,
+        densify_until=0, clean_iterations=(), iterations=10_000, **(overrides or {}),
     )  # fmt: skip
     t = Trainer(scene, cfg, priors)
     t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
@@ -132,7 +140,15 @@ def main() -> None:
     parser.add_argument(
         "--no-iteration", action="store_true", help="only the field and loss tables"
     )
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="FIELD=JSON",
+        help="override a TrainConfig field of the timed iteration (repeatable), e.g. to time "
+        "the reference's choice: --set depth.hard_downscale=1",
+    )  # fmt: skip
     args = parser.parse_args()
+    from sparsesplat.engine.train.overrides import parse_override
+
+    overrides = dict(parse_override(item) for item in args.set)
     print(machine_info())
     if args.field_backends:
         field_rows = [
@@ -153,7 +169,7 @@ def main() -> None:
         return
     rows = []
     for n in args.sizes:
-        r = measure(n, args.iterations)
+        r = measure(n, args.iterations, overrides=overrides)
         rows.append({k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()})
     cols = ["gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd", "photo_render",
             "losses", "photo_backward", "neural_bwd", "optimizer", "setup"]  # fmt: skip

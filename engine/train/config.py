@@ -49,7 +49,9 @@ class InitConfig:
     as DC. Falls back to 'random' with a warning (``metrics['init']``) when no pixel is
     confident. 'sparse': the scene's sparse points (``Scene.sparse_points``, from the camera
     estimation of photos uploaded without cameras) with their colours, topped up with jittered
-    copies to the point count; falls back to 'random' saying why when the scene has none."""
+    copies to the point count; falls back to 'random' saying why when the scene has none.
+    'auto': 'dense' when the training cameras face forward, 'random' when they look inward
+    (``datasets.common.camera_layout``), the choice named in ``metrics['init']``."""
     box: Box | None = None
     """Box for random init; None uses the scene's ``init_box``, else one fitted to the frusta."""
     points: int | None = None
@@ -181,6 +183,10 @@ class DepthConfig:
     """Constant opacity of the hard-depth pass."""
     hard_start: int = 0
     """Hard depth runs for iterations > this."""
+    hard_downscale: int = 1
+    """Render the hard pass at 1/n of the training image's side, against the prior averaged
+    to that size, with the patch sides divided by n (same image fraction): n² fewer pixels
+    for a pass that only shapes the centres' depth. 1: the reference (full resolution)."""
     soft_start: int = 1000
     """Soft depth runs for iterations > this."""
     every: int = 1
@@ -238,6 +244,8 @@ class DepthConfig:
             raise ConfigError(f"depth.hard_opacity must be in (0, 1), got {self.hard_opacity}")
         if self.every < 1:
             raise ConfigError(f"depth.every must be >= 1, got {self.every}")
+        if self.hard_downscale < 1:
+            raise ConfigError(f"depth.hard_downscale must be >= 1, got {self.hard_downscale}")
         if self.min_agreement is not None and not -1.0 <= self.min_agreement <= 1.0:
             raise ConfigError(
                 f"depth.min_agreement must be in [-1, 1] or None, got {self.min_agreement}"

@@ -16,9 +16,11 @@ checks, the empty-background edit, the [0, 257] guides of the smoothness weights
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from sparsesplat.engine.errors import SceneError
@@ -46,6 +48,56 @@ def empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tensor
     if not bool(empty.any()) or bool(empty.all()):
         return prior
     return torch.where(empty, prior[~empty].min(), prior)
+
+
+def downscale_depth(depth: Tensor, size: tuple[int, int]) -> Tensor:
+    """(H, W) depth averaged over the pixels of each cell of an ``size`` = (h, w) grid (area
+    resampling: each coarse pixel is the mean of the fine pixels it covers)."""
+    return F.interpolate(depth[None, None], size=size, mode="area")[0, 0]
+
+
+@dataclass
+class DepthLevel:
+    """The priors of every training view at one resolution, prepared for the depth loss."""
+
+    downscale: int
+    """Image side over this level's side (1: the training resolution)."""
+    priors: list[Tensor]
+    """(h, w) prior per training view."""
+    guides: list[Tensor]
+    """The priors on the [0, 257] scale the reference's smoothness weights see."""
+    targets: list[DepthTarget]
+    """The priors' fixed loss parts (normalized patches, smoothness weights), per view; not
+    used where a view's background mask edits the prior each iteration (DTU)."""
+    patch_range: tuple[int, int]
+    """Patch sides of the normalization at this resolution: the configured range divided by
+    ``downscale`` (rounded up), so a patch covers the same part of the image."""
+
+    @classmethod
+    def build(
+        cls, priors: list[Tensor], downscale: int, patch_range: tuple[int, int], smooth: bool
+    ) -> DepthLevel:
+        """The level of ``priors`` (full resolution) at 1/``downscale`` of their side."""
+        if downscale > 1:
+            priors = [
+                downscale_depth(p, _coarse_size(p.shape[-2], p.shape[-1], downscale))
+                for p in priors
+            ]
+        guides = []
+        for d in priors:
+            span = float(d.max() - d.min())
+            guides.append((d - d.min()) / span * 257.0 if span > 0 else d * 0)
+        targets = [
+            DepthTarget(p, g if smooth else None) for p, g in zip(priors, guides, strict=True)
+        ]
+        lo, hi = (-(-p // downscale) for p in patch_range)
+        return cls(downscale, priors, guides, targets, (lo, hi))
+
+
+def _coarse_size(height: int, width: int, downscale: int) -> tuple[int, int]:
+    """The (h, w) of an image of (height, width) rendered at 1/``downscale`` of its side: the
+    size ``Camera.scaled`` gives (rounded, at least 1)."""
+    return max(1, round(height / downscale)), max(1, round(width / downscale))
 
 
 class DepthRegularizer:
@@ -89,10 +141,7 @@ class DepthRegularizer:
                 f"priors: depth_prior={settings.prior!r} needs one prior per training view "
                 f"({len(images)}), got {got}"
             )
-        self.priors: list[Tensor] = []
-        """The prepared (H, W) priors, one per training view."""
-        self.smooth_guides: list[Tensor] = []
-        """The priors on the [0, 257] scale the reference's smoothness weights see."""
+        full: list[Tensor] = []
         for i, p in enumerate(priors):
             d = torch.as_tensor(getattr(p, "depth", p), dtype=torch.float32).to(images[i].device)
             h, w = images[i].shape[1:]
@@ -104,15 +153,16 @@ class DepthRegularizer:
             d = d.reshape(h, w)
             if settings.empty_background:
                 d = empty_background_to_nearest(d, images[i], background)
-            self.priors.append(d)
-            span = float(d.max() - d.min())
-            self.smooth_guides.append((d - d.min()) / span * 257.0 if span > 0 else d * 0)
-        self.targets = [
-            DepthTarget(p, g if settings.smooth_weight > 0 else None)
-            for p, g in zip(self.priors, self.smooth_guides, strict=True)
-        ]
-        """The priors' fixed loss parts (normalized patches, smoothness weights), per view;
-        not used where a view's background mask edits the prior each iteration (DTU)."""
+            full.append(d)
+        smooth = settings.smooth_weight > 0
+        self.full = DepthLevel.build(full, 1, settings.patch_range, smooth)
+        """The priors at the training resolution (the soft term's)."""
+        self.hard_level = (
+            self.full
+            if settings.hard_downscale == 1
+            else DepthLevel.build(full, settings.hard_downscale, settings.patch_range, smooth)
+        )
+        """The priors at the hard pass's resolution (``depth.hard_downscale``)."""
         self.hard_logit = float(inverse_sigmoid(torch.tensor(settings.hard_opacity)))
         """The hard pass's constant opacity as a logit."""
         self.hard_ema: float | None = None
@@ -138,10 +188,15 @@ class DepthRegularizer:
         mask = view.mask if self.fill_background else None
         if s.hard and pos > s.hard_start:
             hard = torch.full((n,), self.hard_logit, device=g.means.device)
-            out = self.raster(
-                g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, view.camera, None
+            level = self.hard_level
+            camera = (
+                view.camera if level.downscale == 1 else view.camera.scaled(1 / level.downscale)
             )
-            loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
+            out = self.raster(
+                g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, camera, None
+            )
+            hard_mask = mask if mask is None or level.downscale == 1 else _coarse_mask(mask, level)
+            loss = self.depth_loss(out.depth, view.index, iteration, extent, hard_mask, level)
             guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
             loss.backward()
             finish_auxiliary_pass(optimizer, self.joint)
@@ -193,29 +248,41 @@ class DepthRegularizer:
         mask = view.mask if self.fill_background else None
         return self.depth_loss(opacity_depth, view.index, iteration, extent, mask)
 
+    @property
+    def priors(self) -> list[Tensor]:
+        """The prepared (H, W) priors at the training resolution, one per training view."""
+        return self.full.priors
+
     def depth_loss(
-        self, depth: Tensor, index: int, iteration: int, extent: float, mask: Tensor | None = None
+        self,
+        depth: Tensor,
+        index: int,
+        iteration: int,
+        extent: float,
+        mask: Tensor | None = None,
+        level: DepthLevel | None = None,
     ) -> Tensor:
         """Global-local depth loss of a rendered ``depth`` against prior ``index``, plus the
         edge-aware smoothness once it is on (rendered depth in units of the scene extent).
-        ``mask``: background pixels filled with the foreground means in both depths first."""
-        s = self.settings
+        ``mask``: background pixels filled with the foreground means in both depths first.
+        ``level``: the resolution of ``depth`` (default: the training resolution)."""
+        s, lv = self.settings, self.full if level is None else level
         d = depth.reshape(depth.shape[-2], depth.shape[-1])
-        prior: Tensor | DepthTarget = self.targets[index]
+        prior: Tensor | DepthTarget = lv.targets[index]
         if mask is not None:
-            d, prior = fill_background_depth(d, self.priors[index], mask)
+            d, prior = fill_background_depth(d, lv.priors[index], mask)
         loss = global_local_depth_loss(
             d,
             prior,
-            s.patch_range,
+            lv.patch_range,
             s.error_tolerance,
             self.generator,
             s.global_weight,
             s.local_weight,
         )
         if s.smooth_weight > 0 and self.clock.position(iteration) > s.smooth_start:
-            weights = self.targets[index].smooth_weights
-            smooth = edge_aware_smoothness(d / extent, self.smooth_guides[index], weights)
+            weights = lv.targets[index].smooth_weights
+            smooth = edge_aware_smoothness(d / extent, lv.guides[index], weights)
             loss = loss + s.smooth_weight * smooth
         return loss
 
@@ -226,3 +293,11 @@ class DepthRegularizer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore from a checkpoint."""
         self.hard_ema = state.get("hard_ema")
+
+
+def _coarse_mask(mask: Tensor, level: DepthLevel) -> Tensor:
+    """A full-resolution background mask at ``level``: a coarse pixel is background when most
+    of the fine pixels it covers are."""
+    h, w = level.priors[0].shape[-2:]
+    flat = mask.reshape(mask.shape[-2], mask.shape[-1]).to(torch.float32)
+    return (downscale_depth(flat, (h, w)) > 0.5).reshape(*mask.shape[:-2], h, w)

@@ -3,6 +3,10 @@
 ``random`` (the reference: uniform in the init box), ``dense`` (confident metric depth of the
 training views, back-projected; ``dense_init.py``) and ``sparse`` (the points of the camera
 estimation; ``engine/sfm/points.py``). The last two fall back to ``random`` and say why.
+``auto`` is ``dense`` when the training cameras face forward and ``random`` when they look
+inward: the plane sweep behind ``dense`` is confident on most pixels of a forward-facing
+capture (overlapping frusta, small rotation) and on few, clustered ones of an orbit, where
+the back-projected cloud lost to the random box (docs/experiments/2026-11-25-dense-init-llff.md).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.datasets.common import camera_layout
 from sparsesplat.engine.errors import PriorError, SceneError
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.sfm.points import sparse_initial_points
@@ -42,15 +47,19 @@ def initial_points(
         n = cfg.points
     else:
         n = initial_point_count(cfg, lo, hi, [c.center.cpu() for c in cameras])
-    note = None
-    if cfg.method == "sparse":
+    note, method = None, cfg.method
+    if method == "auto":
+        layout = camera_layout(cameras)
+        method = "dense" if layout.kind == "forward-facing" else "random"
+        note = f"random: training cameras {layout.describe()}" if method == "random" else None
+    if method == "sparse":
         try:
             points, colours = sparse_initial_points(scene.sparse_points, n, generator)
             return points, colours, f"sparse: {len(points)} points"
         except SceneError as exc:
             note = f"random: sparse init failed ({exc})"
             log.warning("init='sparse' fell back to a random box: %s", exc)
-    if cfg.method == "dense":
+    if method == "dense":
         try:
             points, colours = dense_points_from_priors(
                 [v.image for v in scene.train],

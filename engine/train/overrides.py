@@ -58,6 +58,7 @@ FLAT_NAMES: dict[str, str] = {
     "soft_depth": "depth.soft",
     "hard_opacity": "depth.hard_opacity",
     "hard_depth_start": "depth.hard_start",
+    "hard_depth_downscale": "depth.hard_downscale",
     "soft_depth_start": "depth.soft_start",
     "depth_every": "depth.every",
     "depth_until": "depth.until",

@@ -35,9 +35,19 @@ _BLENDER: dict[str, Any] = {
     "densify.clean_iterations": (1, 1000, 2000, 3000, 4500, 6000),
 }
 
+_LLFF_PARTS: dict[str, Any] = {
+    "dropout.enabled": True,
+    "init.method": "auto",
+    "depth.hard_downscale": 2,
+}
+"""What the LLFF-style presets (``llff``, ``default``) add to the reference recipe, measured on
+flower and horns (docs/experiments/2026-11-25-dense-init-llff.md)."""
+
 PRESETS: dict[str, dict[str, Any]] = {
-    # LLFF: the defaults, plus DropGaussian (not in the reference).
-    "llff": {"preset": "llff", "dropout.enabled": True},
+    # LLFF: the defaults, plus three parts not in the reference: DropGaussian, the init from
+    # the plane sweep of the training views where the cameras face forward (the random box
+    # on an orbit), and the hard-depth pass at half resolution.
+    "llff": {"preset": "llff", **_LLFF_PARTS},
     # DTU: 3 views at 400x300, hard + EMA-gated soft depth, larger patches, the reference's
     # black-background pieces, a dense init and the warp-consistency term at weight 0.3 (the
     # last two not in the reference).
@@ -71,7 +81,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     | {"preset": "object"},
     # User uploads: the LLFF recipe (forward-facing phone captures are the common case) with
     # the background taken from the scene and a lighter point count.
-    "default": {"preset": "default", "init.points_max": 50_000, "dropout.enabled": True},
+    "default": {"preset": "default", "init.points_max": 50_000, **_LLFF_PARTS},
 }
 """Preset name → dotted field overrides on top of the TrainConfig defaults."""
 

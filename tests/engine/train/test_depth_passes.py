@@ -32,10 +32,13 @@ def _hard_depth_agreement(t: Trainer, priors: list[torch.Tensor]) -> float:
     return sum(scores) / len(scores)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_hard_depth_pass_pulls_rendered_depth_to_an_exact_prior(seed: int) -> None:
+@pytest.mark.parametrize(("seed", "downscale"), [(0, 1), (1, 1), (2, 1), (0, 2), (1, 2), (2, 2)])
+def test_hard_depth_pass_pulls_rendered_depth_to_an_exact_prior(seed: int, downscale: int) -> None:
+    """At the training resolution and at half of it (``depth.hard_downscale=2``), the judge
+    being the full-resolution agreement either way."""
     scene, depths = make_scene(seed=seed, width=40, height=30)
-    t = Trainer(scene, small(soft_depth=False, hard_depth_start=0), depths)
+    cfg = small(soft_depth=False, hard_depth_start=0, **{"depth.hard_downscale": downscale})
+    t = Trainer(scene, cfg, depths)
     assert t.depth is not None
     before = {k: v.detach().clone() for k, v in t.gaussians.params.items()}
     start = _hard_depth_agreement(t, depths)

@@ -4,6 +4,7 @@ says at trainer level, on tiny synthetic scenes."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -11,19 +12,21 @@ from typing import Any
 import pytest
 import torch
 
+from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.sh import C0
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.raster import RasterOutput
-from sparsesplat.engine.synthetic import make_scene
+from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train import Trainer, preset
 from sparsesplat.engine.train import trainer as trainer_module
 
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]
-    """The LLFF recipe at smoke scale (as in test_trainer.py)."""
+    """The LLFF recipe at smoke scale (as in test_trainer.py), from the random box (the
+    preset's ``auto`` init is tested on its own below)."""
     base: dict[str, Any] = dict(
-        iterations=30, init_points=200, eval_interval_s=0, eval_lpips=False, export=False,
-        hash_log2_size=14, lr_means_start=0, lr_means_steps=30, soft_depth_start=10,
+        init="random", iterations=30, init_points=200, eval_interval_s=0, eval_lpips=False,
+        export=False, hash_log2_size=14, lr_means_start=0, lr_means_steps=30, soft_depth_start=10,
         densify_from=5, densify_until=25, densify_interval=5, depth_smooth_start=20,
         checkpoint_interval_s=0, threads=1,
     )  # fmt: skip
@@ -350,3 +353,32 @@ def test_near_prune_evaluation_ignores_what_sits_at_a_held_out_camera() -> None:
         scores[on] = (clean, t.evaluate()["psnr"])
     assert scores[True][0] == scores[True][1]  # the occluders are left out of the renders
     assert scores[False][1] < scores[False][0] - 1.0  # ... and without pruning they cover them
+
+
+def test_auto_init_is_dense_for_forward_facing_cameras(tmp_path: Path) -> None:
+    scene, depths = make_scene(seed=0, width=40, height=30)  # train views within 29 degrees
+    metric = _true_depth_priors(scene, depths)
+    cfg = small(init="auto", dense_init_points=150)
+    t = Trainer(scene, cfg, depths, tmp_path, init_depth=metric)
+    assert t.init_note == "dense: 150 points" and len(t.gaussians) == 150
+
+
+def test_auto_init_is_the_random_box_for_an_orbit(tmp_path: Path) -> None:
+    scene, depths = make_scene(seed=0, width=40, height=30)
+    orbit = [
+        dataclasses.replace(v, camera=look_at_camera(angle, v.camera))
+        for v, angle in zip(scene.train, (-1.4, 0.0, 1.4), strict=True)
+    ]  # three views 80 degrees apart around the origin
+    scene = dataclasses.replace(scene, train=orbit)
+    t = Trainer(scene, small(init="auto", dense_init_points=150), depths, tmp_path)
+    assert t.init_note is not None and t.init_note.startswith(
+        "random: training cameras inward-looking"
+    )
+    assert len(t.gaussians) == 200  # the random box's count, not the dense one
+
+
+def look_at_camera(angle: float, like: Camera) -> Camera:
+    """``like``'s intrinsics at 4 units from the origin, ``angle`` radians around it."""
+    eye = torch.tensor([4.0 * math.sin(angle), 0.0, -4.0 * math.cos(angle)])
+    return Camera(look_at(eye, torch.zeros(3)), like.fx, like.fy, like.cx, like.cy,
+                  like.width, like.height)  # fmt: skip
