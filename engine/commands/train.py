@@ -33,8 +33,8 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 """Presets in the order ``--help`` lists them (``engine.train.presets.PRESETS``)."""
 
 _PRESET_HELP = {
-    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe; "
-    "5000 iterations",
+    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe, "
+    "started from the plane-sweep point cloud when the cameras face forward; 5000 iterations",
     "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 1500 iterations",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
     "1500 iterations",
@@ -42,7 +42,7 @@ _PRESET_HELP = {
     "backdrop), any unit: the Blender recipe with the init box from the cameras; "
     "1500 iterations",
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
-    "recipe; 5000 iterations",
+    "recipe (plane-sweep init only when forward-facing); 5000 iterations",
 }
 # When to use each preset and its default run length. Kept here, not in engine.train.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names
