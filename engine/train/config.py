@@ -183,10 +183,12 @@ class DepthConfig:
     """Constant opacity of the hard-depth pass."""
     hard_start: int = 0
     """Hard depth runs for iterations > this."""
-    hard_downscale: int = 1
+    hard_downscale: int | None = 1
     """Render the hard pass at 1/n of the training image's side, against the prior averaged
     to that size, with the patch sides divided by n (same image fraction): n² fewer pixels
-    for a pass that only shapes the centres' depth. 1: the reference (full resolution)."""
+    for a pass that only shapes the centres' depth. 1: the reference (full resolution).
+    None: 2 when the training cameras face forward, 1 when they look inward (on the
+    LLFF-format orbits 2 lost held-out PSNR; docs/experiments/2026-11-25-dense-init-llff.md)."""
     soft_start: int = 1000
     """Soft depth runs for iterations > this."""
     every: int = 1
@@ -244,7 +246,7 @@ class DepthConfig:
             raise ConfigError(f"depth.hard_opacity must be in (0, 1), got {self.hard_opacity}")
         if self.every < 1:
             raise ConfigError(f"depth.every must be >= 1, got {self.every}")
-        if self.hard_downscale < 1:
+        if self.hard_downscale is not None and self.hard_downscale < 1:
             raise ConfigError(f"depth.hard_downscale must be >= 1, got {self.hard_downscale}")
         if self.min_agreement is not None and not -1.0 <= self.min_agreement <= 1.0:
             raise ConfigError(

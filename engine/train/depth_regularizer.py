@@ -23,6 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.datasets.common import camera_layout
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
 from sparsesplat.engine.losses import DepthTarget, edge_aware_smoothness, global_local_depth_loss
@@ -48,6 +50,14 @@ def empty_background_to_nearest(prior: Tensor, image: Tensor, background: Tensor
     if not bool(empty.any()) or bool(empty.all()):
         return prior
     return torch.where(empty, prior[~empty].min(), prior)
+
+
+def hard_downscale(settings: DepthConfig, cameras: list[Camera]) -> int:
+    """The hard pass's resolution divisor: ``depth.hard_downscale``, or where that is None 2
+    for training ``cameras`` that face forward and 1 for an inward-looking set (an orbit)."""
+    if settings.hard_downscale is not None:
+        return settings.hard_downscale
+    return 2 if camera_layout(cameras).kind == "forward-facing" else 1
 
 
 def downscale_depth(depth: Tensor, size: tuple[int, int]) -> Tensor:
@@ -119,6 +129,7 @@ class DepthRegularizer:
         views: set[int] | None = None,
         joint: bool = False,
         fill_background: bool = False,
+        hard_downscale: int | None = None,
     ) -> None:
         """Check and prepare ``priors`` (one PriorDepth or (H, W) tensor per training view,
         aligned with ``images`` (3, H, W)); SceneError names the view of a bad one. ``clock``:
@@ -126,7 +137,9 @@ class DepthRegularizer:
         training views whose prior is used (None: all). ``joint``: ``optim.auxiliary_step ==
         'joint'``, the passes leave their gradients for the photometric step. ``fill_background``:
         DTU, fill the view's background mask (``TrainView.mask``) in rendered and prior depth
-        with their foreground means (``dtu.enabled`` and ``dtu.depth_fill``)."""
+        with their foreground means (``dtu.enabled`` and ``dtu.depth_fill``).
+        ``hard_downscale``: the hard pass's resolved ``depth.hard_downscale`` (None: the
+        setting's, 1 when it is None too)."""
         self.settings = settings
         self.clock = clock
         self.joint = joint
@@ -157,10 +170,9 @@ class DepthRegularizer:
         smooth = settings.smooth_weight > 0
         self.full = DepthLevel.build(full, 1, settings.patch_range, smooth)
         """The priors at the training resolution (the soft term's)."""
+        n = hard_downscale or settings.hard_downscale or 1
         self.hard_level = (
-            self.full
-            if settings.hard_downscale == 1
-            else DepthLevel.build(full, settings.hard_downscale, settings.patch_range, smooth)
+            self.full if n == 1 else DepthLevel.build(full, n, settings.patch_range, smooth)
         )
         """The priors at the hard pass's resolution (``depth.hard_downscale``)."""
         self.hard_logit = float(inverse_sigmoid(torch.tensor(settings.hard_opacity)))

@@ -38,15 +38,15 @@ _BLENDER: dict[str, Any] = {
 _LLFF_PARTS: dict[str, Any] = {
     "dropout.enabled": True,
     "init.method": "auto",
-    "depth.hard_downscale": 2,
+    "depth.hard_downscale": None,
 }
 """What the LLFF-style presets (``llff``, ``default``) add to the reference recipe, measured on
 flower and horns (docs/experiments/2026-11-25-dense-init-llff.md)."""
 
 PRESETS: dict[str, dict[str, Any]] = {
-    # LLFF: the defaults, plus three parts not in the reference: DropGaussian, the init from
-    # the plane sweep of the training views where the cameras face forward (the random box
-    # on an orbit), and the hard-depth pass at half resolution.
+    # LLFF: the defaults, plus three parts not in the reference: DropGaussian, and where the
+    # training cameras face forward the init from the plane sweep of the training views and
+    # the hard-depth pass at half resolution (on an orbit: the random box, full resolution).
     "llff": {"preset": "llff", **_LLFF_PARTS},
     # DTU: 3 views at 400x300, hard + EMA-gated soft depth, larger patches, the reference's
     # black-background pieces, a dense init and the warp-consistency term at weight 0.3 (the

@@ -70,7 +70,7 @@ from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.consistency import WarpConsistency
 from sparsesplat.engine.train.densify import DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.depth_gate import agreeing_views
-from sparsesplat.engine.train.depth_regularizer import DepthRegularizer
+from sparsesplat.engine.train.depth_regularizer import DepthRegularizer, hard_downscale
 from sparsesplat.engine.train.dropout import PhotometricDropout, scatter_output
 from sparsesplat.engine.train.dtu_background import DtuBackground
 from sparsesplat.engine.train.guard import DivergenceGuard
@@ -168,6 +168,7 @@ class Trainer:
                     views,
                     joint=self.config.optim.joint,
                     fill_background=self.config.dtu.enabled and self.config.dtu.depth_fill,
+                    hard_downscale=hard_downscale(self.config.depth, self.cameras),
                 )
         self.init_note: str | None = None
         """How the initial Gaussians were made when ``init='dense'`` (also in the metrics)."""

@@ -3,12 +3,20 @@ render's size, the patch range scaled with it, the background mask carried over.
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.synthetic import look_at, make_cameras
 from sparsesplat.engine.train.config import ConfigError, DepthConfig
-from sparsesplat.engine.train.depth_regularizer import DepthLevel, _coarse_mask, downscale_depth
+from sparsesplat.engine.train.depth_regularizer import (
+    DepthLevel,
+    _coarse_mask,
+    downscale_depth,
+    hard_downscale,
+)
 
 
 def _block_means(x: torch.Tensor, f: int) -> torch.Tensor:
@@ -64,3 +72,22 @@ def test_coarse_mask_is_the_majority_of_each_block() -> None:
 def test_hard_downscale_must_be_positive() -> None:
     with pytest.raises(ConfigError, match=r"depth\.hard_downscale"):
         DepthConfig(hard_downscale=0).validate()
+
+
+def _orbit(angles: tuple[float, ...]) -> list[Camera]:
+    cams = []
+    for a in angles:
+        eye = torch.tensor([4.0 * math.sin(a), 0.0, -4.0 * math.cos(a)])
+        cams.append(Camera(look_at(eye, torch.zeros(3)), 30.0, 30.0, 20.0, 15.0, 40, 30))
+    return cams
+
+
+def test_unset_hard_downscale_follows_the_camera_layout() -> None:
+    forward = make_cameras(3, 40, 30)  # an arc within 29 degrees of the mean view
+    orbit = _orbit((-1.4, 0.0, 1.4))  # 80 degrees apart, converging on the origin
+    unset = DepthConfig(hard_downscale=None)
+    assert hard_downscale(unset, forward) == 2
+    assert hard_downscale(unset, orbit) == 1
+    for n in (1, 3):  # a set value is kept whatever the layout
+        assert hard_downscale(DepthConfig(hard_downscale=n), orbit) == n
+        assert hard_downscale(DepthConfig(hard_downscale=n), forward) == n

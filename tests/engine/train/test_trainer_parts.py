@@ -355,15 +355,16 @@ def test_near_prune_evaluation_ignores_what_sits_at_a_held_out_camera() -> None:
     assert scores[False][1] < scores[False][0] - 1.0  # ... and without pruning they cover them
 
 
-def test_auto_init_is_dense_for_forward_facing_cameras(tmp_path: Path) -> None:
+def test_forward_facing_cameras_get_the_dense_init_and_the_coarse_hard_pass(tmp_path: Path) -> None:
     scene, depths = make_scene(seed=0, width=40, height=30)  # train views within 29 degrees
     metric = _true_depth_priors(scene, depths)
     cfg = small(init="auto", dense_init_points=150)
     t = Trainer(scene, cfg, depths, tmp_path, init_depth=metric)
     assert t.init_note == "dense: 150 points" and len(t.gaussians) == 150
+    assert t.depth is not None and t.depth.hard_level.downscale == 2  # the preset's rule too
 
 
-def test_auto_init_is_the_random_box_for_an_orbit(tmp_path: Path) -> None:
+def test_an_orbit_gets_the_random_box_and_the_full_resolution_hard_pass(tmp_path: Path) -> None:
     scene, depths = make_scene(seed=0, width=40, height=30)
     orbit = [
         dataclasses.replace(v, camera=look_at_camera(angle, v.camera))
@@ -375,6 +376,7 @@ def test_auto_init_is_the_random_box_for_an_orbit(tmp_path: Path) -> None:
         "random: training cameras inward-looking"
     )
     assert len(t.gaussians) == 200  # the random box's count, not the dense one
+    assert t.depth is not None and t.depth.hard_level is t.depth.full  # full resolution
 
 
 def look_at_camera(angle: float, like: Camera) -> Camera:
