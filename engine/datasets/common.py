@@ -486,10 +486,15 @@ def choose_preset(scene: Scene) -> tuple[str, str]:
     face forward or look inward: on the inward-looking instant-ngp ``fox`` (3 views, 1/4
     resolution, 1500 iterations) the LLFF recipe scored 13.6 dB against 12.5 dB for the dtu
     recipe, and the LLFF-format scenes of shared/data are inward orbits trained with it. The
-    reason names the camera layout either way."""
+    reason names the camera layout either way (for the llff format, of the training views:
+    the preset's init and hard pass follow it)."""
     if scene.format in FORMAT_PRESETS:
         name = FORMAT_PRESETS[scene.format]
-        return name, f"{scene.format} format: the paper's protocol for it"
+        reason = f"{scene.format} format: the paper's protocol for it"
+        if name == "llff":  # its init and hard pass follow the training cameras' layout
+            train = camera_layout([v.camera for v in scene.train]).describe()
+            reason += f"; training cameras {train}"
+        return name, reason
     layout = f"cameras {camera_layout([v.camera for v in scene.train + scene.test]).describe()}"
     if has_alpha(scene):
         return "object", f"the images have alpha (an object on an empty background); {layout}"

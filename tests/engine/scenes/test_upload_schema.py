@@ -3,6 +3,7 @@ mistake from issue #11 a SceneError that names the problem and how to fix it."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -13,9 +14,11 @@ import pytest
 import torch
 from PIL import Image
 
+from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.common import choose_preset, with_background
 from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.synthetic import look_at, make_scene
 from tests.cli.scenes import shrink_images, write_object_scene
 from tests.engine.scenes.synthetic import write_folder_scene
 
@@ -217,3 +220,22 @@ def test_instant_ngp_frames_with_alpha_go_on_white(tmp_path: Path) -> None:
     assert view.alpha is not None
     assert torch.equal(view.image[view.alpha == 0], torch.ones_like(view.image[view.alpha == 0]))
     assert choose_preset(scene)[0] == "object"
+
+
+def test_llff_reason_names_the_training_cameras_layout() -> None:
+    """The llff preset's init and hard pass follow the training views' layout, so the reason
+    the run prints names it (forward-facing here: the synthetic arc spans 29 degrees)."""
+    scene = dataclasses.replace(make_scene(seed=0)[0], format="llff")
+    name, reason = choose_preset(scene)
+    assert name == "llff"
+    assert reason.startswith("llff format: the paper's protocol for it; training cameras ")
+    assert "forward-facing" in reason
+    orbit = [
+        dataclasses.replace(v, camera=Camera(look_at(eye, torch.zeros(3)), 30, 30, 16, 12, 32, 24))
+        for v, eye in zip(
+            scene.train,
+            (torch.tensor([-4.0, 0, 0]), torch.tensor([0, 0, -4.0]), torch.tensor([4.0, 0, 0])),
+            strict=True,
+        )
+    ]  # three views 90 degrees apart, all aimed at the origin
+    assert "inward-looking" in choose_preset(dataclasses.replace(scene, train=orbit))[1]
