@@ -405,6 +405,12 @@ class CameraLayout:
     converges: bool
     """Whether the point nearest all optical axes lies in front of every camera."""
 
+    @property
+    def forward_facing(self) -> bool:
+        """Whether the cameras face forward (the layout the LLFF-style presets' plane-sweep
+        init and half-resolution hard pass are for)."""
+        return self.kind == "forward-facing"
+
     def describe(self) -> str:
         """One phrase for messages, e.g. 'inward-looking (view directions spread 42°)'."""
         return f"{self.kind} (view directions within {self.spread_deg:.0f}° of their mean)"

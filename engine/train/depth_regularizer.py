@@ -57,7 +57,7 @@ def hard_downscale(settings: DepthConfig, cameras: list[Camera]) -> int:
     for training ``cameras`` that face forward and 1 for an inward-looking set (an orbit)."""
     if settings.hard_downscale is not None:
         return settings.hard_downscale
-    return 2 if camera_layout(cameras).kind == "forward-facing" else 1
+    return 2 if camera_layout(cameras).forward_facing else 1
 
 
 def downscale_depth(depth: Tensor, size: tuple[int, int]) -> Tensor:

@@ -50,7 +50,7 @@ def initial_points(
     note, method = None, cfg.method
     if method == "auto":
         layout = camera_layout(cameras)
-        method = "dense" if layout.kind == "forward-facing" else "random"
+        method = "dense" if layout.forward_facing else "random"
         note = f"random: training cameras {layout.describe()}" if method == "random" else None
     if method == "sparse":
         try:
