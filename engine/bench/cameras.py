@@ -122,6 +122,7 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.priors import compute_priors
     from sparsesplat.engine.train import Trainer, preset
+    from sparsesplat.engine.train.run import training_layout
 
     torch.set_num_threads(threads)
     rows = []
@@ -130,7 +131,7 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
         for cameras, path in (("dataset", folder), ("estimated", estimated)):
             scene = load_scene(path)
             name = {"llff": "llff", "dtu": "dtu", "blender": "blender"}.get(scene.format, "llff")
-            config = preset(name, iterations=iterations, seed=0, threads=threads)
+            config = preset(name, iterations, training_layout(scene), seed=0, threads=threads)
             priors = compute_priors(scene, config.depth.prior) if config.depth.used else None
             result = Trainer(scene, config, priors, Path(tmp) / cameras).run()
             metrics = result.metrics

@@ -156,9 +156,16 @@ def variant_overrides(variant: str) -> dict[str, Any]:
     )
 
 
-def variant_config(name: str, variant: str, seed: int = 0, iterations: int | None = None) -> Any:
+def variant_config(
+    name: str,
+    variant: str,
+    seed: int = 0,
+    iterations: int | None = None,
+    layout: str | None = None,
+) -> Any:
     """The config of ``variant`` of preset ``name`` (validated), trained ``iterations``
-    iterations (default: the preset's run length).
+    iterations (default: the preset's run length), with the preset's recipe for the training
+    cameras' ``layout`` as ``sparsesplat train`` gives it (``run.training_layout``).
 
     ``iters:N`` is the preset's reference schedule compressed to N iterations, e.g.
     ``iters:2000`` (it takes precedence over ``iterations``); any other variant is a set of
@@ -171,11 +178,11 @@ def variant_config(name: str, variant: str, seed: int = 0, iterations: int | Non
             iterations = int(count)
         except ValueError:
             raise SystemExit(f"bench-quality: variant {variant!r}: expected iters:N") from None
-        return preset(name, iterations=iterations, seed=seed)
+        return preset(name, iterations=iterations, layout=layout, seed=seed)
     overrides = variant_overrides(variant)
     if "iterations" in overrides:  # set:iterations=N means iters:N
         iterations = overrides.pop("iterations")
-    return preset(name, iterations=iterations, seed=seed, **overrides)
+    return preset(name, iterations=iterations, layout=layout, seed=seed, **overrides)
 
 
 def _entry_key(row: dict[str, Any]) -> tuple[Any, ...]:
@@ -393,6 +400,7 @@ def run(args: argparse.Namespace) -> int:
 
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.train.overrides import apply_overrides
+    from sparsesplat.engine.train.run import training_layout
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -425,7 +433,9 @@ def run(args: argparse.Namespace) -> int:
             trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row
             for variant in variants:
                 config = apply_overrides(
-                    variant_config(preset_name, variant, seed, args.iterations),
+                    variant_config(
+                        preset_name, variant, seed, args.iterations, training_layout(scene)
+                    ),
                     {
                         "record.eval_max_views": args.eval_max_views,
                         "record.export": not args.no_export,

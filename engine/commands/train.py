@@ -33,8 +33,9 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 """Presets in the order ``--help`` lists them (``engine.train.presets.PRESETS``)."""
 
 _PRESET_HELP = {
-    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's forward-facing recipe, "
-    "started from the plane-sweep point cloud when the cameras face forward; 5000 iterations",
+    "llff": "LLFF-format scenes (poses_bounds.npy): the paper's recipe; where the training "
+    "cameras face forward, its recipe for a multi-view-stereo start, from the plane-sweep point "
+    "cloud, 3000 iterations; otherwise the random box, 5000 iterations",
     "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 1500 iterations",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
     "1500 iterations",
@@ -42,11 +43,13 @@ _PRESET_HELP = {
     "backdrop), any unit: the Blender recipe with the init box from the cameras; "
     "1500 iterations",
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
-    "recipe (plane-sweep init only when forward-facing); 5000 iterations",
+    "recipe (forward-facing: from the plane-sweep point cloud, 3000 iterations; otherwise "
+    "5000 iterations)",
 }
 # When to use each preset and its default run length. Kept here, not in engine.train.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names
-# exactly the presets that exist, with their PRESET_ITERATIONS.
+# exactly the presets that exist, with their PRESET_ITERATIONS and the lengths of their
+# LAYOUT_RECIPES.
 
 EPILOG = (
     "presets (chosen from the scene when --preset is not given; the choice and the reason are "

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
-from sparsesplat.engine.train.overrides import apply_overrides, convert
+from sparsesplat.engine.train.overrides import apply_overrides, convert, resolve
 
 _BLENDER: dict[str, Any] = {
     "preset": "blender",
@@ -41,7 +41,44 @@ _LLFF_PARTS: dict[str, Any] = {
     "depth.hard_downscale": None,
 }
 """What the LLFF-style presets (``llff``, ``default``) add to the reference recipe, measured on
-flower and horns (docs/experiments/2026-11-25-dense-init-llff.md)."""
+flower and horns (docs/experiments/2026-11-25-dense-init-llff.md). Without a scene to look at,
+the init and the hard pass's resolution follow the camera layout when the trainer starts
+(``auto`` / None); with one, :data:`LAYOUT_RECIPES` makes them concrete."""
+
+_FORWARD_FACING: dict[str, Any] = {
+    # 3000 iterations: with the recipe below a forward-facing capture grows more Gaussians
+    # (about 40k on flower and horns), and 3000 iterations take 470-500 s of the 10-minute
+    # budget on 2 cores.
+    "iterations": 3000,
+    "init.method": "dense",
+    "depth.hard_downscale": 2,
+    # The reference's recipe for a multi-view-stereo start (its run_llff_mvs.sh): the centres
+    # already lie on the surfaces, so they move 32x less (the random box's 0.016 x extent
+    # scatters them), densify at a lower gradient, and the depth prior only corrects what is
+    # clearly off. Measured on flower and horns:
+    # docs/experiments/2026-11-25-forward-facing-recipe.md.
+    "optim.lr_means_init": 0.0005,
+    "optim.lr_means_final": 0.000005,
+    "optim.lr_scaling": 0.005,
+    "photometric.lambda_dssim": 0.25,
+    "photometric.scale_weight": 0.0,
+    "densify.grad_threshold": 0.0008,
+    "depth.error_tolerance": 0.01,
+}
+"""The LLFF-style presets on a forward-facing capture: the plane-sweep point cloud as the start,
+the hard pass at half resolution, and the reference's optimizer recipe for a start on the
+surfaces."""
+
+LAYOUT_RECIPES: dict[str, dict[str, dict[str, Any]]] = {
+    "llff": {"forward-facing": _FORWARD_FACING},
+    "default": {"forward-facing": _FORWARD_FACING},
+}
+"""Preset name → camera layout (``datasets.common.CameraLayout.kind``) → dotted overrides on
+the preset for scenes whose training cameras are laid out so (``iterations``: the default run
+length there, in place of :data:`PRESET_ITERATIONS`). Applied by :func:`preset` when
+it is told the layout and the caller's overrides do not name ``init.method``: a recipe is its
+init and what goes with it, so naming another init keeps the preset's base recipe. A layout
+a preset does not list changes nothing (the orbits keep the reference's random-box recipe)."""
 
 PRESETS: dict[str, dict[str, Any]] = {
     # LLFF: the defaults, plus three parts not in the reference: DropGaussian, and where the
@@ -97,10 +134,14 @@ whose held-out error was best on the shared scenes of its format, measured on 2 
 (docs/experiments/)."""
 
 
-def preset(name: str, iterations: int | None = None, **overrides: Any) -> TrainConfig:
-    """The config of preset ``name``: its reference schedule compressed to ``iterations``
-    (default :data:`PRESET_ITERATIONS`), then ``overrides`` applied as given (dotted names
-    via ``**{"depth.soft_start": 500}``, or the old flat names).
+def preset(
+    name: str, iterations: int | None = None, layout: str | None = None, **overrides: Any
+) -> TrainConfig:
+    """The config of preset ``name`` with its recipe for the training cameras' ``layout``
+    (:data:`LAYOUT_RECIPES`; None: not known, the trainer resolves ``auto`` fields itself):
+    its reference schedule compressed to ``iterations`` (default: the layout recipe's
+    ``iterations``, else :data:`PRESET_ITERATIONS`), then ``overrides`` applied as given
+    (dotted names via ``**{"depth.soft_start": 500}``, or the old flat names).
 
     Compressing always starts from the reference schedule, so any length is exact, longer
     than the default included (``TrainConfig.with_iterations`` on an already compressed
@@ -110,6 +151,16 @@ def preset(name: str, iterations: int | None = None, **overrides: Any) -> TrainC
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}")
     if iterations is not None:
         convert("iterations", iterations)
-    length = PRESET_ITERATIONS[name] if iterations is None else iterations
-    reference = apply_overrides(TrainConfig(), PRESETS[name])
+    recipe = dict(layout_recipe(name, layout, overrides))
+    default_length = recipe.pop("iterations", PRESET_ITERATIONS[name])
+    length = default_length if iterations is None else iterations
+    reference = apply_overrides(apply_overrides(TrainConfig(), PRESETS[name]), recipe)
     return apply_overrides(reference.with_iterations(length), overrides)
+
+
+def layout_recipe(name: str, layout: str | None, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The overrides preset ``name`` adds for training cameras laid out as ``layout`` (empty
+    when the layout is unknown, the preset lists none for it, or ``overrides`` name the init)."""
+    if layout is None or any(resolve(key) == "init.method" for key in overrides):
+        return {}
+    return LAYOUT_RECIPES.get(name, {}).get(layout, {})

@@ -64,8 +64,10 @@ class PreparedRun:
 
 
 def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
-    """The config ``spec`` asks for on ``scene`` (``scene`` is only read when the preset is to
-    be chosen). :class:`ConfigError` names a bad preset, field, value or length."""
+    """The config ``spec`` asks for on ``scene``: the preset (chosen from ``scene`` when the
+    spec names none) with its recipe for the training cameras' layout, then the spec's
+    overrides. ``scene`` None: no layout recipe (the trainer resolves the preset's ``auto``
+    fields when it starts). :class:`ConfigError` names a bad preset, field, value or length."""
     overrides = dict(spec.overrides)
     iterations = spec.iterations
     lengths = [k for k in overrides if resolve(k) == "iterations"]
@@ -93,10 +95,20 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
         name, reason = choose_preset(scene)
     else:
         raise ConfigError("no preset named and no scene to choose one from")
-    config = preset(name, iterations=iterations, **overrides)
+    config = preset(name, iterations=iterations, layout=training_layout(scene), **overrides)
     if budget is not None:
         config = apply_overrides(config, {"time_budget_s": float(budget)})
     return RunPlan(config, reason)
+
+
+def training_layout(scene: Scene | None) -> str | None:
+    """How the scene's training cameras are laid out (``CameraLayout.kind``), which picks the
+    preset's recipe for it; None without a scene or training views."""
+    if scene is None or not scene.train:
+        return None
+    from sparsesplat.engine.datasets.common import camera_layout
+
+    return camera_layout([view.camera for view in scene.train]).kind
 
 
 def build_run(

@@ -4,6 +4,7 @@ clear message with exit code 2 for each mistake issue #11 found (no tracebacks).
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import torch
 
 from sparsesplat.engine.commands import train as train_cmd
 from sparsesplat.engine.train import PRESETS
-from sparsesplat.engine.train.presets import PRESET_ITERATIONS
+from sparsesplat.engine.train.presets import LAYOUT_RECIPES, PRESET_ITERATIONS
 from tests.cli.conftest import SMOKE, run_cli, strict_json
 from tests.cli.scenes import shrink_images, write_object_scene
 
@@ -29,7 +30,9 @@ def test_help_lists_presets_prior_kinds_and_exit_codes() -> None:
     for name in PRESETS:
         assert f"  {name} " in text, name
         line = train_cmd._PRESET_HELP[name]
-        assert line.endswith(f"; {PRESET_ITERATIONS[name]} iterations"), name
+        lengths = [PRESET_ITERATIONS[name]]
+        lengths += [r["iterations"] for r in LAYOUT_RECIPES.get(name, {}).values()]
+        assert [int(n) for n in re.findall(r"(\d+) iterations", line)] == sorted(lengths), name
     assert "images have alpha" in text and "plain white/black backdrop" in text
     assert "exit codes" in text
     assert set(train_cmd.PRESET_NAMES) == set(PRESETS), "help must name exactly the presets"

@@ -128,3 +128,20 @@ def test_bad_switch_values_are_rejected_with_the_field_named(bad: dict) -> None:
     with pytest.raises(ValidationError) as info:
         JobSpec(**bad)
     assert next(iter(bad)) in str(info.value)
+
+
+def test_a_job_and_the_cli_get_the_same_layout_recipe_on_a_scene() -> None:
+    """With a scene to look at, both paths take the preset's recipe for its training cameras'
+    layout (the synthetic scene's cameras face forward): a job trains what ``sparsesplat
+    train`` trains."""
+    from sparsesplat.engine.synthetic import make_scene
+
+    scene, _ = make_scene(seed=0)
+    forward = preset("llff", layout="forward-facing", seed=0)
+    job = build_config(JobSpec(preset="llff", seed=0), scene=scene)[0]
+    cli = plan_run(train_command.run_spec(_cli_args("--preset", "llff", "--seed", "0")), scene)
+    assert job == cli.config == forward
+    assert forward.init.method == "dense" and forward != preset("llff", seed=0)
+    # a job that names its init keeps the preset's base recipe, as the CLI does
+    named = build_config(JobSpec(preset="llff", seed=0, init="random"), scene=scene)[0]
+    assert named == preset("llff", seed=0, **{"init.method": "random"})
