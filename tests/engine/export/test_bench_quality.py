@@ -12,6 +12,7 @@ import pytest
 
 import sparsesplat.engine.datasets as datasets
 from sparsesplat.engine.bench import quality
+from sparsesplat.engine.synthetic import make_cameras
 from sparsesplat.engine.train import preset
 
 
@@ -48,7 +49,9 @@ def test_resume_skips_finished_and_reuses_identical_configs(
 
     def fake_load(path: Path, views: int | None = None, downscale: int = 1) -> Any:
         fmt = "llff" if path.parent.name == "llff" else "dtu"
-        return SimpleNamespace(name=path.name, format=fmt, train=[0, 1, 2])
+        # training views need cameras: the bench reads their layout for the preset's recipe
+        train = [SimpleNamespace(camera=c) for c in make_cameras(3, 8, 6)]
+        return SimpleNamespace(name=path.name, format=fmt, train=train)
 
     def fake_entry(scene_path: Path, scene: Any, variant: str, config: Any, *rest: Any) -> dict:
         calls.append((scene.name, variant))
