@@ -47,8 +47,8 @@ the init and the hard pass's resolution follow the camera layout when the traine
 
 _FORWARD_FACING: dict[str, Any] = {
     # 3000 iterations: with the recipe below a forward-facing capture grows more Gaussians
-    # (about 40k on flower and horns), and 3000 iterations take 470-500 s of the 10-minute
-    # budget on 2 cores.
+    # (39-48k on flower and horns), and 3000 iterations took 474-562 s of the 10-minute
+    # budget on a 2-core Ice Lake-class Xeon.
     "iterations": 3000,
     "init.method": "dense",
     "depth.hard_downscale": 2,
