@@ -1,4 +1,5 @@
-"""Build (once, cached) and load the native CPU colour-field extension (hash grid, SH encoding).
+"""Build (once, cached) and load the native CPU colour-field extension (hash grid, SH encoding,
+the threads' flush-denormal mode).
 
 Built and cached by :mod:`engine.native_build` (compiled at first use, reused by content key)
 from the shared baseline flags; the AVX-512 kernels are a translation unit of their own, called
@@ -22,7 +23,7 @@ class HashGridBuildError(EngineError, RuntimeError):
 _EXTENSION = NativeExtension(
     "sparsesplat_hashgrid_cpu",
     Path(__file__).resolve().parent / "cpu",
-    ("hashgrid.cpp", "sh.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp"),
+    ("hashgrid.cpp", "sh.cpp", "fpmode.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp"),
     [*BASELINE_CFLAGS, NO_FP_CONTRACT],
     on_failure=HashGridBuildError,
     failure_hint="set SPARSESPLAT_HASHGRID=torch to use the torch implementation instead",

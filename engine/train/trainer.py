@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,7 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, make_color_model
 from sparsesplat.engine.color.sh import C0
 from sparsesplat.engine.datasets.common import with_background
+from sparsesplat.engine.denormals import flush_denormals
 from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import (
@@ -614,8 +616,11 @@ class Trainer:
         prev_threads = torch.get_num_threads()
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
+        # After the thread count: the mode is per thread (see engine/denormals.py).
+        fp_mode = flush_denormals() if self.device.type == "cpu" else nullcontext()
         try:
-            return self._run()
+            with fp_mode:
+                return self._run()
         except (TrainingDiverged, ModelCollapsed) as exc:
             self._emit(StateChange("failed", self.iteration, str(exc)))
             raise

@@ -17,6 +17,9 @@
 // Degree-3 SH direction encoding, sh.cpp.
 torch::Tensor sh16_forward(torch::Tensor dirs);
 torch::Tensor sh16_backward(torch::Tensor dirs, torch::Tensor grad);
+// Flush-denormal mode of the compute threads, fpmode.cpp.
+bool set_flush_denormal_all(bool on);
+bool flush_denormal_enabled();
 
 namespace {
 
@@ -267,5 +270,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("backward", &backward, "Gradients w.r.t. the inputs and the (dense) table");
   m.def("sh16_forward", &sh16_forward, "Degree-3 SH basis (N, 3) unit dirs -> (N, 16)");
   m.def("sh16_backward", &sh16_backward, "Gradient of sh16_forward w.r.t. the directions");
+  m.def("set_flush_denormal_all", &set_flush_denormal_all,
+        "Flush denormals to zero on the calling and the OpenMP threads; returns the old state");
+  m.def("flush_denormal_enabled", &flush_denormal_enabled,
+        "Whether the calling thread flushes denormals");
   m.def("variant", &variant_name, "Kernel instruction-set variant chosen for this CPU");
 }
