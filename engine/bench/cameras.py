@@ -121,8 +121,8 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
 
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.priors import compute_priors
-    from sparsesplat.engine.train import Trainer, preset
-    from sparsesplat.engine.train.run import training_layout
+    from sparsesplat.engine.train import Trainer
+    from sparsesplat.engine.train.run import RunSpec, plan_run
 
     torch.set_num_threads(threads)
     rows = []
@@ -131,7 +131,9 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
         for cameras, path in (("dataset", folder), ("estimated", estimated)):
             scene = load_scene(path)
             name = {"llff": "llff", "dtu": "dtu", "blender": "blender"}.get(scene.format, "llff")
-            config = preset(name, iterations, training_layout(scene), seed=0, threads=threads)
+            # The one run recipe (the CLI's and the service's), with the preset named.
+            spec = RunSpec(name, {"seed": 0, "threads": threads}, iterations)
+            config = plan_run(spec, scene).config
             priors = compute_priors(scene, config.depth.prior) if config.depth.used else None
             result = Trainer(scene, config, priors, Path(tmp) / cameras).run()
             metrics = result.metrics
