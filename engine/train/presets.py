@@ -47,10 +47,17 @@ the init and the hard pass's resolution follow the camera layout when the traine
 
 _FORWARD_FACING: dict[str, Any] = {
     # 3000 iterations: with the recipe below a forward-facing capture grows more Gaussians
-    # (39-48k on flower and horns), and 3000 iterations took 474-562 s of the 10-minute
-    # budget on a 2-core Ice Lake-class Xeon.
+    # (43-50k on flower and horns), and 3000 iterations took 501-617 s of training on a
+    # 2-core Ice Lake-class Xeon (one flower seed 17 s over the 10 minutes).
     "iterations": 3000,
     "init.method": "dense",
+    # 8000 start points from the pixels the plane sweep is at least 0.7 sure of (the random
+    # box's count, ~1.6k, at 0.5 before): the centres move little under this recipe, so the
+    # start is most of the geometry. More points alone (at 0.5) took in wrong depths on horns'
+    # glass and lost 0.8 dB there; with the stricter cut both scenes gain
+    # (docs/experiments/2026-11-26-dense-start.md).
+    "init.dense_points": 8000,
+    "init.dense_min_confidence": 0.7,
     "depth.hard_downscale": 2,
     # The reference's recipe for a multi-view-stereo start (its run_llff_mvs.sh): the centres
     # already lie on the surfaces, so they move 32x less (the random box's 0.016 x extent
