@@ -5,8 +5,8 @@ Adam's first moment decays by 0.9 per step on the hash-table rows that stop rece
 entries sit in the denormal range (below 1.2e-38) for the ~150 steps before they underflow to
 zero. x86 CPUs handle each denormal operand with a microcode assist of a hundred cycles or more:
 measured on a flower run at 47.7k Gaussians (iteration 2000 of 3000), 1.7M of the table's 12.2M
-first-moment entries were denormal and Adam took 46 ms of a 0.29 s iteration; with denormals
-flushed, 22 ms at one thread (docs/experiments/2026-11-26-denormals.md).
+first-moment entries were denormal and Adam took 46 ms of a 0.29 s iteration at two threads;
+with denormals flushed, 12 ms (one thread: 56 -> 22 ms; docs/experiments/2026-11-26-denormals.md).
 
 Flushing changes only values below 1.2e-38 (their effect on a parameter is below float32's
 resolution of any value they are added to). The MXCSR register holding the mode is per thread
