@@ -75,6 +75,11 @@ class InitConfig:
     the random init's count (``points`` or the automatic count)."""
     dense_min_confidence: float = 0.5
     """Smallest prior confidence of a pixel used by ``method='dense'``."""
+    dense_min_points: int = 0
+    """Floor for ``method='dense'``: when fewer pixels than this (or than the target, if
+    smaller) pass ``dense_min_confidence``, the most confident pixels are taken instead, this
+    many (pixels of zero confidence never); the run's ``init`` note says how far the cut went
+    down. 0: no floor."""
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid field."""
@@ -82,6 +87,8 @@ class InitConfig:
             raise ConfigError(f"init.opacity must be in (0, 1), got {self.opacity}")
         if self.dense_points is not None and self.dense_points < 1:
             raise ConfigError(f"init.dense_points must be >= 1, got {self.dense_points}")
+        if self.dense_min_points < 0:
+            raise ConfigError(f"init.dense_min_points must be >= 0, got {self.dense_min_points}")
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,10 @@ penalty), which the preset that enables this init should adopt.
 Where it runs: once, at model set-up (today ``Trainer._setup_model``, where
 ``points = lo + rand * (hi - lo)`` draws the random box), after the priors are prepared::
 
-    points, colours = dense_points_from_priors(
+    points, colours, cut = dense_points_from_priors(
         [v.image for v in scene.train], [v.camera for v in scene.train], priors,
         target=cfg.init.dense_points, generator=trainer_generator,
-        min_confidence=cfg.init.dense_min_confidence)
+        min_confidence=cfg.init.dense_min_confidence, min_points=cfg.init.dense_min_points)
 
 The points then feed ``NeuralColor.create`` (hash-grid bounds) and ``Gaussians.from_points``
 (k-NN scales) exactly as the random points do; the colours can seed SH DC terms. When no pixel
@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -155,6 +155,26 @@ def photo_consistency(
     return out
 
 
+class DensePoints(NamedTuple):
+    """The dense init's draw: points, their colours and the confidence cut that was used."""
+
+    points: Tensor
+    """(N, 3) float32 back-projected centres, on the CPU."""
+    colours: Tensor
+    """(N, 3) float32 colours in [0, 1] of the pixels they came from."""
+    cut: float
+    """Smallest confidence a drawn pixel could have: ``min_confidence``, or lower where the
+    floor (``min_points``) had to reach past it."""
+
+    def describe(self, min_confidence: float) -> str:
+        """One line for a run's metrics, e.g. ``dense: 8000 points`` or, when the floor
+        lowered the cut, ``dense: 2000 points (cut lowered 0.7 -> 0.412 to reach the floor)``."""
+        text = f"dense: {len(self.points)} points"
+        if self.cut < min_confidence:
+            text += f" (cut lowered {min_confidence:g} -> {self.cut:.3g} to reach the floor)"
+        return text
+
+
 def dense_points(
     images: Sequence[Tensor],
     cameras: Sequence[Camera],
@@ -163,15 +183,23 @@ def dense_points(
     target: int,
     generator: torch.Generator,
     min_confidence: float = 0.5,
-) -> tuple[Tensor, Tensor]:
+    min_points: int = 0,
+) -> DensePoints:
     """Back-project the pixels with ``confidence >= min_confidence`` (and finite, positive
     depth) of every view, pool them and draw ``target`` of them uniformly without replacement
-    (all of them when fewer). Returns points (N, 3) and colours (N, 3), float32, on the CPU.
+    (all of them when fewer). Returns float32 CPU points and colours and the cut used.
+
+    ``min_points``: a floor. When fewer than ``min(min_points, target)`` pixels pass the cut
+    (a low-texture capture, where the plane sweep is sure of little), the most confident
+    pixels are taken instead, that many, so the start is not a handful of points; pixels of
+    zero confidence never count.
 
     Raises :class:`PriorError` when no pixel qualifies (the caller falls back to the random
     box) or when the inputs disagree in count or size."""
     if target < 1:
         raise PriorError(f"dense init: target point count must be >= 1, got {target}")
+    if min_points < 0:
+        raise PriorError(f"dense init: min_points must be >= 0, got {min_points}")
     if not math.isfinite(min_confidence):
         raise PriorError(f"dense init: min_confidence must be finite, got {min_confidence}")
     if not (len(images) == len(cameras) == len(depths) == len(confidences)):
@@ -179,27 +207,44 @@ def dense_points(
             f"dense init: {len(images)} images, {len(cameras)} cameras, {len(depths)} depths, "
             f"{len(confidences)} confidences"
         )
-    all_pts, all_rgb = [], []
+    floor = min(min_points, target)
+    all_pts, all_rgb, all_conf = [], [], []
     for img, cam, d, c in zip(images, cameras, depths, confidences, strict=True):
         _check_map("image", img, cam)
         _check_map("depth", d, cam)
         _check_map("confidence", c, cam)
         d64 = d.detach().cpu().double()
-        keep = torch.isfinite(d64) & (d64 > 0) & (c.detach().cpu() >= min_confidence)
+        conf = c.detach().cpu().float()
+        usable = torch.isfinite(d64) & (d64 > 0)
+        # Pixels the floor may reach are pooled too, so a view whose confident pixels are
+        # few still lends its best ones.
+        passes = conf >= min_confidence
+        keep = usable & (passes | (conf > 0)) if floor else usable & passes
         if not bool(keep.any()):
             continue
         pts = backproject(torch.where(keep, d64, torch.zeros_like(d64)), cam)
         all_pts.append(pts[keep])
         all_rgb.append(img.detach().cpu().double()[keep])
+        all_conf.append(conf[keep])
     if not all_pts:
         raise PriorError(
             f"dense init: no pixel has finite positive depth and confidence >= {min_confidence}"
         )
-    pts64, rgb64 = torch.cat(all_pts), torch.cat(all_rgb)
+    pts64, rgb64, conf = torch.cat(all_pts), torch.cat(all_rgb), torch.cat(all_conf)
+    passed = conf >= min_confidence
+    cut = float(min_confidence)
+    if int(passed.sum()) < floor:
+        # The floor's most confident pixels; a stable sort keeps ties in pixel order, so the
+        # pick does not depend on the sort's implementation.
+        pick = torch.argsort(conf, descending=True, stable=True)[:floor]
+        cut = min(cut, float(conf[pick[-1]]))
+        pts64, rgb64 = pts64[pick], rgb64[pick]
+    else:
+        pts64, rgb64 = pts64[passed], rgb64[passed]
     if pts64.shape[0] > target:
         pick = torch.randperm(pts64.shape[0], generator=generator)[:target]
         pts64, rgb64 = pts64[pick], rgb64[pick]
-    return pts64.float(), rgb64.clamp(0, 1).float()
+    return DensePoints(pts64.float(), rgb64.clamp(0, 1).float(), cut)
 
 
 def dense_points_from_priors(
@@ -211,7 +256,8 @@ def dense_points_from_priors(
     min_confidence: float = 0.5,
     color_tolerance: float = 0.1,
     depth_tolerance: float = 0.05,
-) -> tuple[Tensor, Tensor]:
+    min_points: int = 0,
+) -> DensePoints:
     """:func:`dense_points` on metric priors. A prior whose confidence is all zero or all one
     carries no information (a user depth map, say); :func:`photo_consistency` replaces it.
     Monocular (non-metric) priors are refused with :class:`PriorError`: their depth is not in
@@ -235,4 +281,6 @@ def dense_points_from_priors(
                 )
             c = checked[i]
         confs.append(c)
-    return dense_points(images, cameras, depths, confs, target, generator, min_confidence)
+    return dense_points(
+        images, cameras, depths, confs, target, generator, min_confidence, min_points
+    )

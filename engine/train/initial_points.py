@@ -61,15 +61,18 @@ def initial_points(
             log.warning("init='sparse' fell back to a random box: %s", exc)
     if method == "dense":
         try:
-            points, colours = dense_points_from_priors(
+            drawn = dense_points_from_priors(
                 [v.image for v in scene.train],
                 [v.camera for v in scene.train],
                 init_priors(scene, depth, prior_cache),
                 target=cfg.dense_points or n,
                 generator=generator,
                 min_confidence=cfg.dense_min_confidence,
+                min_points=cfg.dense_min_points,
             )
-            return points, colours, f"dense: {len(points)} points"
+            if drawn.cut < cfg.dense_min_confidence:
+                log.warning("init='dense': %s", drawn.describe(cfg.dense_min_confidence))
+            return drawn.points, drawn.colours, drawn.describe(cfg.dense_min_confidence)
         except PriorError as exc:
             note = f"random: dense init failed ({exc})"
             log.warning("init='dense' fell back to a random box: %s", exc)

@@ -31,6 +31,7 @@ FLAT_NAMES: dict[str, str] = {
     "init_opacity": "init.opacity",
     "dense_init_points": "init.dense_points",
     "dense_init_min_confidence": "init.dense_min_confidence",
+    "dense_init_min_points": "init.dense_min_points",
     "color_model": "color.model",
     "sh_degree": "color.sh_degree",
     "sh_degree_interval": "color.sh_degree_interval",

@@ -48,7 +48,9 @@ the init and the hard pass's resolution follow the camera layout when the traine
 _FORWARD_FACING: dict[str, Any] = {
     # 3000 iterations: with the recipe below a forward-facing capture grows more Gaussians
     # (43-50k on flower and horns), and 3000 iterations took 501-617 s of training on a
-    # 2-core Ice Lake-class Xeon (one flower seed 17 s over the 10 minutes).
+    # 2-core Ice Lake-class Xeon (the slowest on a noisy stretch of that machine; reruns: see
+    # docs/experiments/2026-11-26-run-length.md). 2700 iterations saved a tenth of the time
+    # and cost 0.007 LPIPS over 3 seeds of both scenes, so the length stays.
     "iterations": 3000,
     "init.method": "dense",
     # 8000 start points from the pixels the plane sweep is at least 0.7 sure of (the random
@@ -58,6 +60,11 @@ _FORWARD_FACING: dict[str, Any] = {
     # (docs/experiments/2026-11-26-dense-start.md).
     "init.dense_points": 8000,
     "init.dense_min_confidence": 0.7,
+    # A low-texture capture may have few pixels that sure: then the 2000 most confident are
+    # the start (about the random box's count) rather than a handful of points the low centre
+    # LR below could not spread. Flower and horns pass 0.7 on far more than 8000 pixels, so
+    # their runs do not change.
+    "init.dense_min_points": 2000,
     "depth.hard_downscale": 2,
     # The reference's recipe for a multi-view-stereo start (its run_llff_mvs.sh): the centres
     # already lie on the surfaces, so they move 32x less (the random box's 0.016 x extent

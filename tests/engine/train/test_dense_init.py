@@ -105,7 +105,10 @@ def test_dense_points_keep_confident_pixels_and_their_colours(seed: int) -> None
     confs = [torch.rand(c.height, c.width, generator=g) for c in cams]
     images = [_index_image(c, i) for i, c in enumerate(cams)]
     f32 = [_f32(c) for c in cams]
-    pts, rgb = dense_points(images, f32, depths, confs, 500, torch.Generator().manual_seed(seed))
+    pts, rgb, cut = dense_points(
+        images, f32, depths, confs, 500, torch.Generator().manual_seed(seed)
+    )
+    assert cut == 0.5
     assert pts.shape == (500, 3) and rgb.shape == (500, 3)
     again = dense_points(images, f32, depths, confs, 500, torch.Generator().manual_seed(seed))
     assert torch.equal(pts, again[0]) and torch.equal(rgb, again[1])
@@ -126,7 +129,7 @@ def test_fewer_confident_pixels_than_target_returns_all() -> None:
     depth = Plane().depth(cam).float()
     conf = torch.zeros(cam.height, cam.width)
     conf[3, 4] = conf[10, 20] = 1.0
-    pts, rgb = dense_points(
+    pts, rgb, _ = dense_points(
         [_index_image(cam, 0)], [_f32(cam)], [depth], [conf], 100, torch.Generator()
     )
     assert pts.shape == (2, 3) and bool(torch.isfinite(pts).all())
@@ -148,6 +151,71 @@ def test_no_usable_pixel_raises_prior_error() -> None:
             dense_points([img], [cam], [depth], [conf], 10, torch.Generator())
     with pytest.raises(PriorError):
         dense_points([img], [cam], [ones[:5]], [ones], 10, torch.Generator())
+
+
+def test_floor_takes_the_most_confident_pixels_when_few_pass_the_cut() -> None:
+    """Two pixels pass 0.7; a floor of 5 adds the next three most confident ones (never a
+    zero-confidence pixel), the cut reported is the fifth's confidence, and the note says so.
+    With enough pixels above the cut, the floor changes nothing."""
+    cam = camera((0.0, 0.0, 0.0))
+    depth = Plane().depth(cam).float()
+    conf = torch.zeros(cam.height, cam.width)
+    ranked = [((3, 4), 0.9), ((10, 20), 0.8), ((5, 5), 0.6), ((7, 1), 0.5), ((2, 9), 0.4)]
+    for (v, u), c in ranked:
+        conf[v, u] = c
+    conf[8, 8] = 0.1  # the sixth: outside a floor of 5
+    args = ([_index_image(cam, 0)], [_f32(cam)], [depth], [conf])
+    pts, rgb, cut = dense_points(*args, 100, torch.Generator(), 0.7, min_points=5)
+    assert pts.shape == (5, 3) and bool(torch.isfinite(pts).all())
+    pixels = {(round(r * cam.width - 0.5), round(g * cam.height - 0.5)) for r, g, _ in rgb.tolist()}
+    assert pixels == {(u, v) for (v, u), _ in ranked}
+    assert cut == pytest.approx(0.4)
+    drawn = dense_points(*args, 100, torch.Generator(), 0.7, min_points=5)
+    assert drawn.describe(0.7) == "dense: 5 points (cut lowered 0.7 -> 0.4 to reach the floor)"
+    # A floor above the usable pixels takes them all (6), still none of zero confidence.
+    assert dense_points(*args, 100, torch.Generator(), 0.7, min_points=50).points.shape == (6, 3)
+    # The floor is capped by the target: 3 points, the three most confident.
+    few = dense_points(*args, 3, torch.Generator(), 0.7, min_points=5)
+    assert few.points.shape == (3, 3) and few.cut == pytest.approx(0.6)
+    # Enough above the cut: the same draw as without a floor, and the cut unchanged.
+    plain = dense_points(*args, 100, torch.Generator(), 0.7)
+    floored = dense_points(*args, 100, torch.Generator(), 0.7, min_points=2)
+    assert torch.equal(plain.points, floored.points) and floored.cut == 0.7
+    assert floored.describe(0.7) == "dense: 2 points"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_floor_does_not_change_a_draw_that_meets_it(seed: int) -> None:
+    """Many pixels above the cut: the floor leaves the seeded draw bit-identical (the
+    forward-facing recipe's floor must not move its runs)."""
+    plane = Plane()
+    cams = [camera((0.0, 0.0, 0.0)), camera((1.0, 0.5, 0.0))]
+    g = torch.Generator().manual_seed(seed)
+    depths = [plane.depth(c).float() for c in cams]
+    confs = [torch.rand(c.height, c.width, generator=g) for c in cams]
+    images = [_index_image(c, i) for i, c in enumerate(cams)]
+    f32 = [_f32(c) for c in cams]
+    plain = dense_points(images, f32, depths, confs, 300, torch.Generator().manual_seed(seed), 0.7)
+    floored = dense_points(
+        images, f32, depths, confs, 300, torch.Generator().manual_seed(seed), 0.7, min_points=200
+    )
+    assert torch.equal(plain.points, floored.points) and torch.equal(plain.colours, floored.colours)
+    assert floored.cut == 0.7
+
+
+def test_negative_floor_is_a_prior_error() -> None:
+    cam = _f32(camera((0.0, 0.0, 0.0)))
+    ones = torch.ones(cam.height, cam.width)
+    with pytest.raises(PriorError, match="min_points"):
+        dense_points(
+            [torch.rand(cam.height, cam.width, 3)],
+            [cam],
+            [ones],
+            [ones],
+            10,
+            torch.Generator(),
+            min_points=-1,
+        )
 
 
 def _two_views() -> tuple[Plane, list[Camera]]:
@@ -205,7 +273,7 @@ def test_priors_path_refuses_monocular_and_fills_flat_confidence() -> None:
     except PriorError:
         n_wrong = 0
     good = [PriorDepth(plane.depth(c).float(), torch.ones(36, 48), True, "user") for c in cams]
-    pts, _ = dense_points_from_priors(images, f32, good, 100, torch.Generator().manual_seed(0))
+    pts, _, _ = dense_points_from_priors(images, f32, good, 100, torch.Generator().manual_seed(0))
     assert pts.shape == (100, 3)
     n_good = dense_points_from_priors(images, f32, good, n_px, torch.Generator())[0].shape[0]
     assert n_wrong < 0.1 * n_good, (n_wrong, n_good)

@@ -153,6 +153,29 @@ def test_dense_init_points_lie_on_the_surface(tmp_path: Path, seed: int) -> None
     assert res.metrics["init"] == "dense: 150 points" and _finite(dense)
 
 
+def test_dense_init_floor_reaches_below_the_cut_and_says_so(tmp_path: Path) -> None:
+    """Every blob pixel at confidence 0.5, the cut at 0.7: without a floor nothing passes and
+    the run falls back to the random box; with a floor of 120 the run starts from 120 blob
+    pixels and its ``init`` note names the lowered cut."""
+    scene, depths = make_scene(seed=0, width=40, height=30)
+    half = [dataclasses.replace(p, confidence=p.confidence * 0.5) for p in
+            _true_depth_priors(scene, depths)]  # fmt: skip
+    strict = {"init.dense_min_confidence": 0.7}
+    none = Trainer(scene, small(init="dense", dense_init_points=150, **strict), depths,
+                   init_depth=half)  # fmt: skip
+    assert none.init_note is not None and none.init_note.startswith("random: dense init failed")
+    floored = Trainer(
+        scene,
+        small(init="dense", dense_init_points=150, **strict, **{"init.dense_min_points": 120}),
+        depths,
+        tmp_path,
+        init_depth=half,
+    )
+    assert len(floored.gaussians) == 120
+    assert floored.init_note == "dense: 120 points (cut lowered 0.7 -> 0.5 to reach the floor)"
+    assert _on_surface_fraction(floored.gaussians.means.detach(), scene, depths) > 0.95
+
+
 def test_dense_init_sh_colours_from_pixels() -> None:
     scene, depths = make_scene(seed=2)
     metric = _true_depth_priors(scene, depths)
