@@ -261,7 +261,12 @@ std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
   {
     AlignedBuf scratch((size_t)(2 * (C + 1) * TILE + S + TILE) * TILE);
     float* mine = grads.data() + (size_t)omp_get_thread_num() * M * S;
-#pragma omp for schedule(dynamic, 1)
+    // A fixed tile -> thread map (round robin): each thread's partial sums, and so the rounding
+    // of their total, are the same on every run with the same thread count. With a dynamic
+    // schedule they depended on which thread grabbed which tile, and a seeded multi-threaded
+    // run did not reproduce itself. Neighbouring tiles cost about the same, so the round robin
+    // keeps the threads about equally loaded.
+#pragma omp for schedule(static, 1)
     for (int t = 0; t < n_tiles; ++t) bwd(args, t % tiles_x, t / tiles_x, scratch.p, mine);
   }
   auto v_m2 = torch::zeros({n, 2}, torch::kFloat32);
