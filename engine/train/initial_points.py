@@ -70,9 +70,10 @@ def initial_points(
                 min_confidence=cfg.dense_min_confidence,
                 min_points=cfg.dense_min_points,
             )
+            described = drawn.describe(cfg.dense_min_confidence)
             if drawn.cut < cfg.dense_min_confidence:
-                log.warning("init='dense': %s", drawn.describe(cfg.dense_min_confidence))
-            return drawn.points, drawn.colours, drawn.describe(cfg.dense_min_confidence)
+                log.warning("init='dense': %s", described)
+            return drawn.points, drawn.colours, described
         except PriorError as exc:
             note = f"random: dense init failed ({exc})"
             log.warning("init='dense' fell back to a random box: %s", exc)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from .helpers import camera, random_gaussians, render_with_grads
+from .helpers import PARAM_NAMES, camera, random_gaussians, render_with_grads
 
 
 def test_cpu_gradients_are_bit_identical_on_every_call(seed: int) -> None:
@@ -22,7 +22,6 @@ def test_cpu_gradients_are_bit_identical_on_every_call(seed: int) -> None:
     assert all(g is not None for g in first)
     for repeat in range(15):
         _, again = render_with_grads(gs, cam, "cpu", seed)
-        for name, a, b in zip(("means", "log_scales", "quats", "opacity", "features"), first,
-                              again, strict=True):  # fmt: skip
+        for name, a, b in zip(PARAM_NAMES, first, again, strict=True):
             assert a is not None and b is not None
             assert torch.equal(a, b), f"repeat {repeat + 1}: the {name} gradient changed"

@@ -94,17 +94,27 @@ def _index_image(cam: Camera, view: int) -> torch.Tensor:
     return torch.stack([(u + 0.5) / cam.width, (v + 0.5) / cam.height, b], dim=-1)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_dense_points_keep_confident_pixels_and_their_colours(seed: int) -> None:
-    """Only pixels at or above the confidence threshold come back, each with its own colour
-    and its own back-projected point; the draw is ``target`` points, reproducible."""
+def _random_confidence_views(
+    seed: int,
+) -> tuple[
+    Plane, list[Camera], list[torch.Tensor], list[Camera], list[torch.Tensor], list[torch.Tensor]
+]:
+    """Two views of the plane with seeded uniform confidences: (plane, float64 cameras,
+    index images, float32 cameras, depths, confidences)."""
     plane = Plane()
     cams = [camera((0.0, 0.0, 0.0)), camera((1.0, 0.5, 0.0))]
     g = torch.Generator().manual_seed(seed)
     depths = [plane.depth(c).float() for c in cams]
     confs = [torch.rand(c.height, c.width, generator=g) for c in cams]
     images = [_index_image(c, i) for i, c in enumerate(cams)]
-    f32 = [_f32(c) for c in cams]
+    return plane, cams, images, [_f32(c) for c in cams], depths, confs
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dense_points_keep_confident_pixels_and_their_colours(seed: int) -> None:
+    """Only pixels at or above the confidence threshold come back, each with its own colour
+    and its own back-projected point; the draw is ``target`` points, reproducible."""
+    plane, cams, images, f32, depths, confs = _random_confidence_views(seed)
     pts, rgb, cut = dense_points(
         images, f32, depths, confs, 500, torch.Generator().manual_seed(seed)
     )
@@ -188,13 +198,7 @@ def test_floor_takes_the_most_confident_pixels_when_few_pass_the_cut() -> None:
 def test_floor_does_not_change_a_draw_that_meets_it(seed: int) -> None:
     """Many pixels above the cut: the floor leaves the seeded draw bit-identical (the
     forward-facing recipe's floor must not move its runs)."""
-    plane = Plane()
-    cams = [camera((0.0, 0.0, 0.0)), camera((1.0, 0.5, 0.0))]
-    g = torch.Generator().manual_seed(seed)
-    depths = [plane.depth(c).float() for c in cams]
-    confs = [torch.rand(c.height, c.width, generator=g) for c in cams]
-    images = [_index_image(c, i) for i, c in enumerate(cams)]
-    f32 = [_f32(c) for c in cams]
+    _, _, images, f32, depths, confs = _random_confidence_views(seed)
     plain = dense_points(images, f32, depths, confs, 300, torch.Generator().manual_seed(seed), 0.7)
     floored = dense_points(
         images, f32, depths, confs, 300, torch.Generator().manual_seed(seed), 0.7, min_points=200
