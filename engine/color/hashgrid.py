@@ -36,7 +36,11 @@ def vertex_weights(frac: Tensor, corners: Tensor) -> Tensor:
     position inside its cell: the product over the axes of ``frac`` (corner bit 1) or
     ``1 - frac`` (bit 0). Any float dtype (the float64 test references use it too)."""
     f = frac[:, :, None, :]
-    return torch.where(corners.bool(), f, 1.0 - f).prod(-1)
+    w = torch.where(corners.bool(), f, 1.0 - f)
+    # Three explicit products, not ``.prod(-1)``: on CUDA the backward of a product over a
+    # 3-wide last axis runs torch's scan (cumprod) kernel, 35 ms per call at 50k points on an
+    # H100, 90 % of a training iteration's GPU time (profiled 2026-11-26).
+    return w[..., 0] * w[..., 1] * w[..., 2]
 
 
 def vertex_rows(vertices: Tensor, levels: dict[str, Tensor]) -> Tensor:

@@ -233,6 +233,12 @@ def check_downscale(downscale: int, source: str) -> int:
     return int(downscale)
 
 
+def _f64(t: Tensor) -> np.ndarray:
+    """A camera tensor as float64 numpy, wherever it lives: the trainer classifies and bounds
+    its cameras after moving them to the model's device (a CUDA tensor has no ``.numpy()``)."""
+    return t.detach().to("cpu", torch.float64).numpy()
+
+
 def look_at_bounds(cameras: Sequence[Camera]) -> tuple[float, float]:
     """Near/far for formats without bounds: the point closest (least squares) to all optical
     axes is taken as the scene centre; near = 0.2x and far = 3x its nearest/farthest depth.
@@ -241,11 +247,11 @@ def look_at_bounds(cameras: Sequence[Camera]) -> tuple[float, float]:
     centre = _axes_point(cameras)
     depths = []
     for cam in cameras:
-        w2c = cam.world_to_camera.double().numpy()
+        w2c = _f64(cam.world_to_camera)
         depths.append(float((w2c[:3, :3] @ centre + w2c[:3, 3])[2]))
     positive = [d for d in depths if d > 0]
     if not positive:  # cameras looking away from each other: fall back to baseline scale
-        centres = np.stack([c.center.double().numpy() for c in cameras])
+        centres = np.stack([_f64(c.center) for c in cameras])
         span = float(np.linalg.norm(centres.max(0) - centres.min(0))) or 1.0
         return 0.05 * span, 50.0 * span
     return 0.2 * min(positive), 3.0 * max(positive)
@@ -421,7 +427,7 @@ def _axes_point(cameras: Sequence[Camera]) -> np.ndarray:
     a = np.zeros((3, 3))
     b = np.zeros(3)
     for cam in cameras:
-        c2w = cam.camera_to_world.double().numpy()
+        c2w = _f64(cam.camera_to_world)
         d, o = c2w[:3, 2], c2w[:3, 3]
         proj = np.eye(3) - np.outer(d, d)
         a += proj
@@ -432,7 +438,7 @@ def _axes_point(cameras: Sequence[Camera]) -> np.ndarray:
 def camera_layout(cameras: Sequence[Camera]) -> CameraLayout:
     """Classify ``cameras`` as forward-facing or inward-looking (see
     :data:`FORWARD_FACING_MAX_SPREAD_DEG`)."""
-    dirs = np.stack([c.camera_to_world.double().numpy()[:3, 2] for c in cameras])
+    dirs = np.stack([_f64(c.camera_to_world)[:3, 2] for c in cameras])
     mean = dirs.mean(axis=0)
     norm = float(np.linalg.norm(mean))
     if norm < 1e-6:  # directions cancel out: cameras all around an object
@@ -443,7 +449,7 @@ def camera_layout(cameras: Sequence[Camera]) -> CameraLayout:
     point = _axes_point(cameras)
     depths = []
     for cam in cameras:
-        w2c = cam.world_to_camera.double().numpy()
+        w2c = _f64(cam.world_to_camera)
         depths.append(float((w2c[:3, :3] @ point + w2c[:3, 3])[2]))
     converges = all(d > 0 for d in depths)
     kind = (
@@ -458,8 +464,8 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
     """Raise SceneError naming the frame when a camera centre is absurd: beyond 1e12 (float32
     arithmetic on it is meaningless) or 1e4x farther from the other cameras than they are from
     each other (a typo or a matrix in other units)."""
-    centres = np.stack([c.camera_to_world.double().numpy()[:3, 3] for c in cameras])
-    w2c_t = np.stack([c.world_to_camera.double().numpy()[:3, 3] for c in cameras])
+    centres = np.stack([_f64(c.camera_to_world)[:3, 3] for c in cameras])
+    w2c_t = np.stack([_f64(c.world_to_camera)[:3, 3] for c in cameras])
     for i, name in enumerate(names):
         size = max(float(np.abs(centres[i]).max()), float(np.abs(w2c_t[i]).max()))
         if not np.isfinite(size) or size > 1e12:

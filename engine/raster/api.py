@@ -134,8 +134,8 @@ def rasterize(
 
 
 def _dispatch(args: RasterInputs, backend: str) -> RasterOutput:
-    means = args.means
     """Run the named backend on validated inputs."""
+    means = args.means
     if backend == "reference":
         from sparsesplat.engine.raster.reference import rasterize_reference
 
