@@ -35,7 +35,8 @@ PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's recipe; where the training "
     "cameras face forward, its recipe for a multi-view-stereo start, from the plane-sweep point "
-    "cloud, 3000 iterations; otherwise the random box, 5000 iterations",
+    "cloud, 3000 iterations; otherwise (an orbit) the random box with opacity decay, 5000 "
+    "iterations",
     "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 1500 iterations",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
     "1500 iterations",
@@ -44,7 +45,7 @@ _PRESET_HELP = {
     "1500 iterations",
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
     "recipe (forward-facing: from the plane-sweep point cloud, 3000 iterations; otherwise "
-    "5000 iterations)",
+    "with opacity decay, 5000 iterations)",
 }
 # When to use each preset and its default run length. Kept here, not in engine.train.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names

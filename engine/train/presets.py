@@ -83,16 +83,28 @@ _FORWARD_FACING: dict[str, Any] = {
 the hard pass at half resolution, and the reference's optimizer recipe for a start on the
 surfaces."""
 
+_INWARD_LOOKING: dict[str, Any] = {
+    # Binocular3DGS's opacity decay while densification runs: on an orbit the three views
+    # overlap little, and Gaussians only one view supports (floaters in front of the other
+    # views' surfaces) fade and are pruned unless the views keep re-asserting them. Measured
+    # on beer_can and juicebox_table: docs/experiments/2026-11-26-orbit-opacity-decay.md. On
+    # the forward-facing scenes it pruned detail instead (llff-preset-length.md), so it stays
+    # off there.
+    "densify.opacity_decay": 0.995,
+}
+"""The LLFF-style presets on an inward-looking orbit: the random box and the base recipe's
+length, with opacity decay."""
+
 LAYOUT_RECIPES: dict[str, dict[str, dict[str, Any]]] = {
-    "llff": {"forward-facing": _FORWARD_FACING},
-    "default": {"forward-facing": _FORWARD_FACING},
+    "llff": {"forward-facing": _FORWARD_FACING, "inward-looking": _INWARD_LOOKING},
+    "default": {"forward-facing": _FORWARD_FACING, "inward-looking": _INWARD_LOOKING},
 }
 """Preset name → camera layout (``datasets.common.CameraLayout.kind``) → dotted overrides on
 the preset for scenes whose training cameras are laid out so (``iterations``: the default run
 length there, in place of :data:`PRESET_ITERATIONS`). Applied by :func:`preset` when
 it is told the layout and the caller's overrides do not name ``init.method``: a recipe is its
 init and what goes with it, so naming another init keeps the preset's base recipe. A layout
-a preset does not list changes nothing (the orbits keep the reference's random-box recipe)."""
+a preset does not list changes nothing."""
 
 PRESETS: dict[str, dict[str, Any]] = {
     # LLFF: the defaults, plus three parts not in the reference: DropGaussian, and where the
