@@ -380,13 +380,14 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
 // scratch holds (2 C + 3) * 256 + S * 16 floats (64-byte aligned). Geo = false skips the 2D mean
 // and conic gradients (their slots stay zero): the soft-depth pass trains opacities only.
 // Op = true also reads v_depth_opacity, whose dL/dalpha_i reaches the opacity slot only.
-template <bool Geo, bool Op>
+// CC: the channel count when known at compile time, -1 for any.
+template <bool Geo, bool Op, int CC>
 static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* scratch,
                                float* grad) {
   const int x0 = tile_x * TILE, y0 = tile_y * TILE;
   const int rows = a.height - y0 < TILE ? a.height - y0 : TILE;
   const int cols = a.width - x0 < TILE ? a.width - x0 : TILE;
-  const int C = a.channels;
+  const int C = CC >= 0 ? CC : a.channels;
   const int S = C + kGradFixed;
   vf* vimg = reinterpret_cast<vf*>(scratch);  // [(C + 1)][16]: dL/dimage, dL/ddepth last
   vf* after = vimg + (C + 1) * TILE;           // [(C + 1)][16]: sum of w f over later Gaussians
@@ -449,7 +450,10 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     if (!hits) continue;
     const vf dx = g.mx - lanex;
     const vf dx2 = 0.5f * g.a * dx * dx;
-    bool touched = false;
+    // Every row the ellipse reaches is evaluated without a branch on "any lane valid": that
+    // test is data dependent, and each misprediction exposed the exp's latency chain. Invalid
+    // lanes contribute exact zeros (w = 0, masked alpha gradients) and keep their state.
+    for (int s = 0; s < S; ++s) gacc[s] = vf{};
     for (; hits; hits &= hits - 1) {
       const int r = __builtin_ctz(hits);
       const float dy = g.my - ((float)(y0 + r) + 0.5f);
@@ -458,11 +462,6 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       const vf oe = g.o * e;
       const vf alpha = vmin(splat(0.999f), oe);
       const vi valid = (splati(jj) < last[r]) & (power >= 0.f) & (alpha >= kAlphaMin);
-      if (!movemask(valid)) continue;
-      if (!touched) {
-        for (int s = 0; s < S; ++s) gacc[s] = vf{};
-        touched = true;
-      }
       const vf ra = vrcp(1.f - alpha);
       const vf t_before = vsel(valid, T[r] * ra, T[r]);
       assign(T[r], t_before);
@@ -473,7 +472,7 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         const vf gk = vimg[k * TILE + r];
         v_alpha += (f[k] * t_before - after[k * TILE + r] * ra) * gk;
         gacc[kGradFixed + k] += w * gk;
-        after[k * TILE + r] += w * f[k];
+        after[k * TILE + r] = vsel(valid, after[k * TILE + r] + w * f[k], after[k * TILE + r]);
       }
       vf v_alpha_op = vf{};
       {
@@ -483,7 +482,7 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         v_alpha += dz * gd;
         if constexpr (Op) v_alpha_op = dz * vop[r];
         gacc[kGradZ] += w * gd;
-        after[C * TILE + r] += w * g.z;
+        after[C * TILE + r] = vsel(valid, after[C * TILE + r] + w * g.z, after[C * TILE + r]);
       }
       // The 0.999 clamp has no gradient (gsplat: only when o * exp(-power) <= 0.999).
       const vi live = valid & (oe <= 0.999f);
@@ -501,7 +500,7 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         gacc[kGradY] += v_sigma * (g.b * dx + g.c * dy);
       }
     }
-    if (touched) {
+    {
       float* out = grad + (int64_t)rank * S;
       if (S <= 16) {
         // Without Geo the geometry slots hold zeros (cleared when touched): adding them is a
@@ -514,14 +513,24 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   }
 }
 
+template <bool Geo, bool Op>
+static void backward_tile_channels(const TileBwd& a, int tile_x, int tile_y, float* scratch,
+                                   float* grad) {
+  switch (a.channels) {  // the channel counts the trainer uses
+    case 0: return backward_tile_impl<Geo, Op, 0>(a, tile_x, tile_y, scratch, grad);
+    case 3: return backward_tile_impl<Geo, Op, 3>(a, tile_x, tile_y, scratch, grad);
+    default: return backward_tile_impl<Geo, Op, -1>(a, tile_x, tile_y, scratch, grad);
+  }
+}
+
 void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad) {
   const bool op = a.v_depth_opacity != nullptr;
   if (a.geometry)
-    op ? backward_tile_impl<true, true>(a, tile_x, tile_y, scratch, grad)
-       : backward_tile_impl<true, false>(a, tile_x, tile_y, scratch, grad);
+    op ? backward_tile_channels<true, true>(a, tile_x, tile_y, scratch, grad)
+       : backward_tile_channels<true, false>(a, tile_x, tile_y, scratch, grad);
   else
-    op ? backward_tile_impl<false, true>(a, tile_x, tile_y, scratch, grad)
-       : backward_tile_impl<false, false>(a, tile_x, tile_y, scratch, grad);
+    op ? backward_tile_channels<false, true>(a, tile_x, tile_y, scratch, grad)
+       : backward_tile_channels<false, false>(a, tile_x, tile_y, scratch, grad);
 }
 
 }  // namespace RASTER_NS

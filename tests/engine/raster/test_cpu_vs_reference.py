@@ -8,6 +8,7 @@ torch float32's own error on the same scene, plus a floor of a few dozen roundof
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -46,6 +47,30 @@ def test_dense_scene_saturates_like_reference(seed: int) -> None:
     gs.log_scales = gs.log_scales + 0.5
     out, _ = assert_matches_reference(gs, camera(48, 32), seed, "saturated scene")
     assert float(out.alpha.detach().max()) > 0.999, f"scene did not saturate (seed {seed})"
+
+
+@pytest.mark.parametrize("opacity", [0.012, 0.02])
+def test_long_tile_lists_match_reference(opacity: float, seed: int) -> None:
+    """A 16x16 image (one tile) under 700 wide, faint Gaussians: hundreds of records per pixel,
+    every one blended, against the same sums in float64. At opacity 0.012 no pixel saturates
+    (0.988^700 > 1e-4) and every pixel evaluates every record; at 0.02 the pixels stop after
+    about 456 records (0.98^n <= 1e-4), deep in the list."""
+    g = torch.Generator().manual_seed(seed)
+    n = 700
+    gs = random_gaussians(n, seed)
+    # Depths 0.01 apart (no order ties within float32's error), centres near the tile's middle
+    # and 15-50 px wide at 20 px focal: every record covers the whole tile, far from the alpha
+    # cut, so no pixel sits at a decision threshold.
+    z = torch.linspace(3.0, 10.0, n)[torch.randperm(n, generator=g)]
+    gs.means = torch.cat([0.05 * torch.randn(n, 2, generator=g), z[:, None]], dim=1)
+    gs.log_scales = torch.full((n, 3), 2.0) + 0.05 * torch.randn(n, 3, generator=g)
+    gs.opacity_logits = torch.full((n,), math.log(opacity / (1 - opacity)))
+    out, _ = assert_matches_reference(gs, camera(16, 16, fx=20.0), seed, f"long lists o={opacity}")
+    evaluated = out.stats["pairs_evaluated"]
+    # Per pixel, more records than one chunk holds (all 700 unsaturated, ~460 saturating).
+    assert evaluated > 1.5 * 256 * 256, f"lists too short to span chunks: {evaluated} pairs"
+    # Saturated pixels stop early; otherwise every pixel evaluates every record.
+    assert (evaluated < n * 256) == (opacity == 0.02), f"saturation not as designed: {evaluated}"
 
 
 @pytest.mark.parametrize(
