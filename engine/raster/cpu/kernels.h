@@ -503,8 +503,8 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     {
       float* out = grad + (int64_t)rank * S;
       if (S <= 16) {
-        // Without Geo the geometry slots hold zeros (cleared when touched): adding them is a
-        // no-op, and one tree over all S slots is cheaper than skipping them.
+        // Without Geo the geometry slots hold zeros (cleared for each Gaussian): adding them is
+        // a no-op, and one tree over all S slots is cheaper than skipping them.
         add_lane_sums(gacc, S, out);
       } else {
         for (int s = Geo ? 0 : kGradO; s < S; ++s) out[s] += hsum(gacc[s]);
