@@ -6,6 +6,11 @@ stages are: the two depth passes (render + loss + backward + Adam step), the neu
 and backward, the photometric render forward, its loss, the raster+loss backward, densification
 bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
 
+The random box is a heavier workload than a trained model of the same size (larger footprints,
+more Gaussians blended per pixel). ``--trained SCENE CHECKPOINT`` adds a row that continues a
+real run instead: the scene, and the model and optimizer state a ``sparsesplat train SCENE
+--out RUN`` run left in ``RUN/checkpoint.pt``, with that scene's plain ``train`` config.
+
 A second table times the neural colour field alone (forward, and backward to the centres and all
 field parameters) with the native kernels and with the torch reference hash grid + SH
 (``--field-backends``), at the same sizes.
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any
 
 from sparsesplat.engine.bench.common import machine_info, write_results
@@ -49,6 +55,43 @@ def measure(
     t = Trainer(scene, cfg, priors)
     t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
     with flush_denormals():  # as Trainer.run does
+        t.iteration += 1
+        t._step()
+        t.timings.clear()
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            t.iteration += 1
+            t._step()
+        total = (time.perf_counter() - t0) / iterations
+    row = {k: v / iterations for k, v in t.timings.items()}
+    row.update(gaussians=len(t.gaussians), total_s=total)
+    return row
+
+
+def measure_trained(
+    scene_dir: str, checkpoint: str, iterations: int, overrides: dict[str, Any] | None = None
+) -> dict[str, float]:
+    """Mean seconds per stage of ``iterations`` iterations (after one warm-up) continuing a real
+    run: the scene at ``scene_dir`` and the model, field and optimizer state of ``checkpoint``
+    (a ``sparsesplat train --out RUN`` run's ``RUN/checkpoint.pt``), with the plain ``train``
+    config for that scene (its preset and layout recipe) plus ``overrides``. Densification and
+    evaluation are off so the Gaussian count stays the checkpoint's; the iterations continue
+    from the checkpoint's own, where the run's last iterations left every pass."""
+    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.denormals import flush_denormals
+    from sparsesplat.engine.malloc import keep_freed_memory
+    from sparsesplat.engine.train.run import RunSpec, build_run
+
+    keep_freed_memory()
+    scene = load_scene(scene_dir)
+    spec = RunSpec(
+        overrides={
+            "record.profile": True, "record.export": False, "record.eval_interval_s": 0,
+            "densify.until": 0, "densify.clean_iterations": (), **(overrides or {}),
+        }
+    )  # fmt: skip
+    t = build_run(spec, scene, resume_from=checkpoint).trainer
+    with flush_denormals():
         t.iteration += 1
         t._step()
         t.timings.clear()
@@ -149,6 +192,12 @@ def main() -> None:
         help="override a TrainConfig field of the timed iteration (repeatable), e.g. to time "
         "the reference's choice: --set depth.hard_downscale=1",
     )  # fmt: skip
+    parser.add_argument(
+        "--trained", nargs=2, metavar=("SCENE", "CHECKPOINT"),
+        help="also time iterations continuing a real run: the scene folder and the "
+        "checkpoint.pt of a `sparsesplat train SCENE --out RUN` run on it (a trained model's "
+        "footprints and depth complexity, in place of the random box's)",
+    )  # fmt: skip
     args = parser.parse_args()
     from sparsesplat.engine.train.overrides import parse_override
 
@@ -173,10 +222,21 @@ def main() -> None:
         return
     rows = []
     for n in args.sizes:
-        r = measure(n, args.iterations, overrides=overrides)
-        rows.append({k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()})
-    cols = ["gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd", "photo_render",
-            "losses", "photo_backward", "neural_bwd", "optimizer", "setup"]  # fmt: skip
+        r: dict[str, Any] = measure(n, args.iterations, overrides=overrides)
+        rows.append(
+            {"model": "random box"}
+            | {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()}
+        )
+    if args.trained:
+        scene_dir, checkpoint = args.trained
+        r = measure_trained(scene_dir, checkpoint, args.iterations, overrides)
+        rows.append(
+            {"model": f"trained {Path(scene_dir).name}"}
+            | {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()}
+        )
+    cols = ["model", "gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd",
+            "photo_render", "losses", "photo_backward", "neural_bwd", "optimizer",
+            "setup"]  # fmt: skip
     write_results("iteration", rows, cols)
 
 
