@@ -35,38 +35,80 @@ struct Block {
   alignas(64) int32_t inside[kBlock];
 };
 
+// The weight and row of corner C (bit k: the upper vertex along axis k) for the block's points,
+// from the per-axis fractions t and lower vertices g. C is a template argument so each loop is
+// straight-line arithmetic that the compiler vectorizes across points.
+template <int C>
+static inline void corner(const float (&t)[3][kBlock], const uint32_t (&g)[3][kBlock],
+                          bool dense, uint32_t s1, uint32_t s2, int n, Block& b) {
+  constexpr uint32_t c0 = C & 1, c1 = (C >> 1) & 1, c2 = (C >> 2) & 1;
+  for (int i = 0; i < n; ++i) {
+    const float a0 = c0 ? t[0][i] : 1.f - t[0][i];
+    const float a1 = c1 ? t[1][i] : 1.f - t[1][i];
+    const float a2 = c2 ? t[2][i] : 1.f - t[2][i];
+    b.w[C][i] = (a0 * a1) * a2;
+  }
+  if (dense) {
+    for (int i = 0; i < n; ++i)
+      b.idx[C][i] = (g[0][i] + c0) + (g[1][i] + c1) * s1 + (g[2][i] + c2) * s2;
+  } else {
+    for (int i = 0; i < n; ++i)
+      b.idx[C][i] = (g[0][i] + c0) ^ ((g[1][i] + c1) * kPrime1) ^ ((g[2][i] + c2) * kPrime2);
+  }
+}
+
+// One axis: the position inside the cell and the cell's lower vertex, x * scale + 0.5 in float32.
+// x is in [0, 1] here (outside points were moved to 0), so p >= 0.5 and below 2^31: truncation
+// is floor, exactly. (GCC does not vectorize std::floor without -fno-trapping-math; the
+// conversion pair does.)
+static inline void cell(const float* __restrict x, float scale, int n, float* __restrict frac,
+                        uint32_t* __restrict g) {
+  for (int i = 0; i < n; ++i) {
+    const float p = x[i] * scale + 0.5f;
+    const int32_t v = (int32_t)p;
+    frac[i] = p - (float)v;
+    g[i] = (uint32_t)v;
+  }
+}
+
+// Written as separate loops over the block's points, each free of per-point control flow and
+// small indexed arrays, so that every one vectorizes (one loop with all of it did not, and ran
+// scalar). The arithmetic and its order are the reference's, so the results are the same bits.
 static inline void corners(const float* __restrict x, const Level& lv, int64_t begin, int n,
                            Block& b) {
   const float scale = lv.scale;
   const uint32_t s1 = lv.stride, s2 = lv.stride * lv.stride;
-  const bool dense = lv.dense;
-  for (int i = 0; i < n; ++i) {
+  alignas(64) float xs[3][kBlock];
+  for (int i = 0; i < n; ++i) {  // (N, 3) rows to one array per axis
     const float* p = x + 3 * (begin + i);
-    float x0 = p[0], x1 = p[1], x2 = p[2];
+    xs[0][i] = p[0];
+    xs[1][i] = p[1];
+    xs[2][i] = p[2];
+  }
+  alignas(64) uint32_t g[3][kBlock];
+  for (int i = 0; i < n; ++i) {
+    const float x0 = xs[0][i], x1 = xs[1][i], x2 = xs[2][i];
     // NaN fails every comparison, so it counts as outside (as in the reference).
     const bool in = (x0 >= 0.f) & (x0 <= 1.f) & (x1 >= 0.f) & (x1 <= 1.f) & (x2 >= 0.f) &
                     (x2 <= 1.f);
     b.inside[i] = in ? -1 : 0;
     // Outside points are evaluated at the origin (valid indices) and masked later.
-    x0 = in ? x0 : 0.f;
-    x1 = in ? x1 : 0.f;
-    x2 = in ? x2 : 0.f;
-    const float p0 = x0 * scale + 0.5f, p1 = x1 * scale + 0.5f, p2 = x2 * scale + 0.5f;
-    const float f0 = std::floor(p0), f1 = std::floor(p1), f2 = std::floor(p2);
-    const float t0 = p0 - f0, t1 = p1 - f1, t2 = p2 - f2;
-    b.frac[0][i] = t0;
-    b.frac[1][i] = t1;
-    b.frac[2][i] = t2;
-    const uint32_t g0 = (uint32_t)(int32_t)f0, g1 = (uint32_t)(int32_t)f1,
-                   g2 = (uint32_t)(int32_t)f2;
-    const float a0[2] = {1.f - t0, t0}, a1[2] = {1.f - t1, t1}, a2[2] = {1.f - t2, t2};
-    for (int c = 0; c < 8; ++c) {
-      const uint32_t c0 = c & 1, c1 = (c >> 1) & 1, c2 = (c >> 2) & 1;
-      b.w[c][i] = (a0[c0] * a1[c1]) * a2[c2];
-      const uint32_t v0 = g0 + c0, v1 = g1 + c1, v2 = g2 + c2;
-      b.idx[c][i] = dense ? v0 + v1 * s1 + v2 * s2 : v0 ^ (v1 * kPrime1) ^ (v2 * kPrime2);
-    }
+    xs[0][i] = in ? x0 : 0.f;
+    xs[1][i] = in ? x1 : 0.f;
+    xs[2][i] = in ? x2 : 0.f;
   }
+  cell(xs[0], scale, n, b.frac[0], g[0]);
+  cell(xs[1], scale, n, b.frac[1], g[1]);
+  cell(xs[2], scale, n, b.frac[2], g[2]);
+  const bool dense = lv.dense;
+  corner<0>(b.frac, g, dense, s1, s2, n, b);
+  corner<1>(b.frac, g, dense, s1, s2, n, b);
+  corner<2>(b.frac, g, dense, s1, s2, n, b);
+  corner<3>(b.frac, g, dense, s1, s2, n, b);
+  corner<4>(b.frac, g, dense, s1, s2, n, b);
+  corner<5>(b.frac, g, dense, s1, s2, n, b);
+  corner<6>(b.frac, g, dense, s1, s2, n, b);
+  corner<7>(b.frac, g, dense, s1, s2, n, b);
   // Fold into the level: dense indices are already < size (make_levels checks stride^3 <= size
   // and the largest corner index is stride^3 - 1), hashed ones take a mask for power-of-two
   // sizes (every hashed level of the grid's layout) and a true modulo otherwise.
