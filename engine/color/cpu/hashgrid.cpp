@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -51,23 +52,67 @@ const Variant& variant() {
   return v;
 }
 
-// A zero-filled float32 (rows, cols) tensor in fresh anonymous memory backed by transparent huge
-// pages where the kernel allows. The dense table gradient is ~50 MB and is allocated every
-// backward: through malloc that is ~12k page faults plus a memset; here the kernel hands out
-// ~25 zeroed 2 MB pages on first touch (inside the parallel level loop) and no memset is needed.
-// Returns an undefined tensor when mmap fails (the caller then uses torch::zeros).
-torch::Tensor zeroed_huge(int64_t rows, int64_t cols) {
+// The dense table gradient is ~50 MB and is made every backward. From malloc that costs ~12k page
+// faults and the kernel's zeroing of each page (~15 ms at 50k points); from fresh anonymous
+// memory with transparent huge pages, ~25 faults that still zero 50 MB. So the gradient lives in
+// a huge-page block that is recycled: when the tensor holding it is freed (the optimizer's
+// zero_grad), its deleter puts the block back, and the next backward takes it and zeroes each
+// level's rows inside the parallel level loop, in memory that is already mapped and warm.
+struct GradBlock {
+  void* base = nullptr;  // the mapping (len bytes)
+  size_t len = 0;
+  void* data = nullptr;  // 2 MB aligned start inside it
+  size_t bytes = 0;      // the tensor's size
+};
+
+std::mutex g_block_mutex;
+std::vector<GradBlock> g_free_blocks;  // at most kKeepBlocks, each ready for reuse
+constexpr size_t kKeepBlocks = 1;
+
+void release_block(const GradBlock& b) {
+  {
+    std::lock_guard<std::mutex> lock(g_block_mutex);
+    if (g_free_blocks.size() < kKeepBlocks) {
+      g_free_blocks.push_back(b);
+      return;
+    }
+  }
+  munmap(b.base, b.len);
+}
+
+// A float32 (rows, cols) tensor in a huge-page block; *zeroed tells whether it is known to be
+// all zeros (a fresh mapping) or holds a previous gradient (a recycled block). Returns an
+// undefined tensor for small sizes or when mmap fails (the caller then uses torch::empty).
+torch::Tensor grad_buffer(int64_t rows, int64_t cols, bool* zeroed) {
   constexpr size_t kHuge = size_t(2) << 20;
   const size_t bytes = size_t(rows) * size_t(cols) * sizeof(float);
+  *zeroed = false;
   if (bytes < kHuge) return torch::Tensor();
-  const size_t len = (bytes + kHuge - 1) / kHuge * kHuge + kHuge;  // room to align
-  void* base = mmap(nullptr, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-  if (base == MAP_FAILED) return torch::Tensor();
-  char* aligned = reinterpret_cast<char*>(
-      (reinterpret_cast<uintptr_t>(base) + kHuge - 1) / kHuge * kHuge);
-  madvise(aligned, len - (aligned - static_cast<char*>(base)), MADV_HUGEPAGE);
+  GradBlock b;
+  std::vector<GradBlock> stale;  // kept blocks of another size: unmapped, not kept forever
+  {
+    std::lock_guard<std::mutex> lock(g_block_mutex);
+    for (const GradBlock& k : g_free_blocks) {
+      if (k.bytes == bytes && b.base == nullptr)
+        b = k;
+      else
+        stale.push_back(k);
+    }
+    g_free_blocks.clear();
+  }
+  for (const GradBlock& k : stale) munmap(k.base, k.len);
+  if (b.base == nullptr) {
+    const size_t len = (bytes + kHuge - 1) / kHuge * kHuge + kHuge;  // room to align
+    void* base = mmap(nullptr, len, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (base == MAP_FAILED) return torch::Tensor();
+    char* aligned = reinterpret_cast<char*>(
+        (reinterpret_cast<uintptr_t>(base) + kHuge - 1) / kHuge * kHuge);
+    madvise(aligned, len - (aligned - static_cast<char*>(base)), MADV_HUGEPAGE);
+    b = GradBlock{base, len, aligned, bytes};
+    *zeroed = true;
+  }
   return torch::from_blob(
-      aligned, {rows, cols}, [base, len](void*) { munmap(base, len); },
+      b.data, {rows, cols}, [b](void*) { release_block(b); },
       torch::TensorOptions().dtype(torch::kFloat32));
 }
 
@@ -187,9 +232,8 @@ std::vector<torch::Tensor> backward(torch::Tensor x, torch::Tensor table, torch:
   // Dense gradient like the reference's; every row is written by the level that owns it.
   bool zeroed = false;
   if (need_table) {
-    gt = zeroed_huge(table.size(0), F);
-    zeroed = gt.defined();
-    if (!zeroed) gt = torch::empty_like(table);
+    gt = grad_buffer(table.size(0), F, &zeroed);
+    if (!gt.defined()) gt = torch::empty_like(table);
   }
   const LevelFn bwd = variant().bwd;
   const float* px = x.data_ptr<float>();

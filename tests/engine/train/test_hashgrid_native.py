@@ -181,6 +181,35 @@ def test_native_gradients_only_where_asked() -> None:
     assert grid(torch.zeros(0, 3)).shape == (0, grid.output_dim)
 
 
+def test_recycled_gradient_block_starts_from_zero() -> None:
+    """The table gradient's memory is recycled once the previous gradient is freed: a backward
+    into a recycled block (which still holds the last gradient) gives the same bits as one into
+    fresh memory, and a gradient still held elsewhere is never written over."""
+    grid = _grid(3, log2_table_size=17)  # 16 MB of table: the huge-page path
+    grid.backend = "native"
+    x = _points(grid, 4000, 3)
+    g = torch.Generator().manual_seed(3)
+    up1, up2 = (torch.rand(len(x), grid.output_dim, generator=g) for _ in range(2))
+
+    def table_grad(upstream: torch.Tensor) -> torch.Tensor:
+        grid.embeddings.grad = None
+        grid(x).backward(upstream)
+        grad = grid.embeddings.grad
+        assert grad is not None
+        return grad
+
+    first = table_grad(up1).clone()
+    grid.embeddings.grad = None  # frees the first gradient's block for reuse
+    recycled = table_grad(up2)  # into that block
+    held = recycled
+    fresh = table_grad(up2)  # ``held`` keeps the block busy: fresh memory
+    assert fresh.data_ptr() != held.data_ptr()
+    assert torch.equal(held, fresh)
+    assert not torch.equal(first, fresh)  # the two upstreams differ, so must their gradients
+    again = table_grad(up1)  # the held block is still busy; ``fresh``'s was freed and reused
+    assert torch.equal(again, first) and torch.equal(held, fresh)
+
+
 def test_backend_selection(monkeypatch: pytest.MonkeyPatch) -> None:
     """float32 CPU → native by default; env var forces torch; float64 falls back; bad values."""
     grid = _grid(0, n_levels=4, log2_table_size=10, finest_resolution=64)
