@@ -225,6 +225,11 @@ class NativeExtension:
         """Module and build-directory name: ``<name>_<content key>``."""
         return f"{self.name}_{build_key(self.source_dir, self.files(), self.cflags)}"
 
+    @property
+    def loaded(self) -> ModuleType | None:
+        """The module if this process has loaded it already, else None (never builds)."""
+        return self._module
+
     def load(self) -> ModuleType:
         """Return the compiled module, building it on first use."""
         if self._module is not None:

@@ -34,3 +34,12 @@ _EXTENSION = NativeExtension(
 def load_extension() -> ModuleType:
     """Return the compiled extension, building it on first use; HashGridBuildError on failure."""
     return _EXTENSION.load()
+
+
+def release_cached_memory() -> int:
+    """Unmap the table-gradient block the hash grid keeps for its next backward and return its
+    bytes (0 when none is kept or the extension was never loaded in this process): called when
+    a training run ends, so a long-lived process does not hold ~50 MB for a backward that may
+    never come."""
+    module = _EXTENSION.loaded
+    return int(module.release_cached_memory()) if module is not None else 0

@@ -46,6 +46,7 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, SHColor, make_color_model
 from sparsesplat.engine.color.sh import C0
 from sparsesplat.engine.datasets.common import with_background
@@ -626,6 +627,7 @@ class Trainer:
             raise
         finally:
             torch.set_num_threads(prev_threads)
+            release_cached_memory()  # the hash grid's gradient block (engine/color/build.py)
 
     def _run(self) -> TrainResult:
         clock, rec = self.clock, self.config.record

@@ -80,6 +80,22 @@ void release_block(const GradBlock& b) {
   munmap(b.base, b.len);
 }
 
+// Unmaps the kept blocks (a block in use is unmapped when its tensor is freed, as usual);
+// returns the bytes unmapped.
+int64_t release_cached_memory() {
+  std::vector<GradBlock> kept;
+  {
+    std::lock_guard<std::mutex> lock(g_block_mutex);
+    kept.swap(g_free_blocks);
+  }
+  int64_t bytes = 0;
+  for (const GradBlock& k : kept) {
+    munmap(k.base, k.len);
+    bytes += (int64_t)k.len;
+  }
+  return bytes;
+}
+
 // A float32 (rows, cols) tensor in a huge-page block; *zeroed tells whether it is known to be
 // all zeros (a fresh mapping) or holds a previous gradient (a recycled block). Returns an
 // undefined tensor for small sizes or when mmap fails (the caller then uses torch::empty).
@@ -318,5 +334,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "Flush denormals to zero on the calling and the OpenMP threads; returns the old state");
   m.def("flush_denormal_enabled", &flush_denormal_enabled,
         "Whether the calling thread flushes denormals");
+  m.def("release_cached_memory", &release_cached_memory,
+        "Unmap the table-gradient block kept for the next backward");
   m.def("variant", &variant_name, "Kernel instruction-set variant chosen for this CPU");
 }

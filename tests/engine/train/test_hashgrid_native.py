@@ -8,9 +8,13 @@ the native error stays within 4x of torch's pooled error plus a floor of a few d
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import pytest
 import torch
 
+from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.hashgrid import HashGrid
 from tests.engine.numerics import assert_float32_close, compare_float32, summed_terms
 
@@ -208,6 +212,30 @@ def test_recycled_gradient_block_starts_from_zero() -> None:
     assert not torch.equal(first, fresh)  # the two upstreams differ, so must their gradients
     again = table_grad(up1)  # the held block is still busy; ``fresh``'s was freed and reused
     assert torch.equal(again, first) and torch.equal(held, fresh)
+
+    # Released, the kept block is unmapped once; the next backward maps a fresh one.
+    del held, recycled, fresh, again
+    grid.embeddings.grad = None
+    assert release_cached_memory() >= grid.embeddings.numel() * 4
+    assert release_cached_memory() == 0
+    assert torch.equal(table_grad(up1), first)
+
+
+def test_training_run_releases_the_kept_gradient_block(tmp_path: Path) -> None:
+    """A finished run leaves no table-gradient block behind for a backward that may not come."""
+    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.train import Trainer, preset
+    from tests.cli.scenes import write_object_scene
+
+    scene = load_scene(write_object_scene(tmp_path / "scene", count=4, test=1, size=24))
+    overrides: dict[str, Any] = {
+        "record.export": False, "record.eval_lpips": False, "record.eval_interval_s": 0,
+        "depth.prior": "none", "color.model": "neural",
+    }  # fmt: skip
+    trainer = Trainer(scene, preset("object", iterations=3, **overrides), None)
+    assert trainer.color.field.grid.uses_native(torch.zeros(1, 3))  # type: ignore[union-attr]
+    trainer.run()
+    assert release_cached_memory() == 0
 
 
 def test_backend_selection(monkeypatch: pytest.MonkeyPatch) -> None:
