@@ -65,9 +65,11 @@ struct GradBlock {
   size_t bytes = 0;      // the tensor's size
 };
 
-std::mutex g_block_mutex;
-std::vector<GradBlock> g_free_blocks;  // at most kKeepBlocks, each ready for reuse
-constexpr size_t kKeepBlocks = 1;
+// Never destroyed (heap singletons): a tensor freed late in interpreter shutdown may still run
+// its deleter after this library's static destructors would have run.
+std::mutex& g_block_mutex = *new std::mutex;
+std::vector<GradBlock>& g_free_blocks = *new std::vector<GradBlock>;  // ready for reuse
+constexpr size_t kKeepBlocks = 1;  // the most blocks kept in g_free_blocks
 
 void release_block(const GradBlock& b) {
   {
