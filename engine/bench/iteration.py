@@ -25,9 +25,31 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sparsesplat.engine.bench.common import machine_info, write_results
+
+if TYPE_CHECKING:
+    from sparsesplat.engine.train import Trainer
+
+
+def _time_steps(t: Trainer, iterations: int) -> dict[str, float]:
+    """Mean seconds per stage (``t``'s profile timings) and in total over ``iterations`` steps
+    of ``t`` after one warm-up step, with denormals flushed as ``Trainer.run`` does."""
+    from sparsesplat.engine.denormals import flush_denormals
+
+    with flush_denormals():
+        t.iteration += 1
+        t._step()
+        t.timings.clear()
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            t.iteration += 1
+            t._step()
+        total = (time.perf_counter() - t0) / iterations
+    row = {k: v / iterations for k, v in t.timings.items()}
+    row.update(gaussians=len(t.gaussians), total_s=total)
+    return row
 
 
 def measure(
@@ -39,7 +61,6 @@ def measure(
 ) -> dict[str, float]:
     """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up) of the
     ``llff`` preset, with dotted-field ``overrides`` (``--set``) on top."""
-    from sparsesplat.engine.denormals import flush_denormals
     from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
@@ -54,18 +75,7 @@ def measure(
     )  # fmt: skip
     t = Trainer(scene, cfg, priors)
     t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
-    with flush_denormals():  # as Trainer.run does
-        t.iteration += 1
-        t._step()
-        t.timings.clear()
-        t0 = time.perf_counter()
-        for _ in range(iterations):
-            t.iteration += 1
-            t._step()
-        total = (time.perf_counter() - t0) / iterations
-    row = {k: v / iterations for k, v in t.timings.items()}
-    row.update(gaussians=len(t.gaussians), total_s=total)
-    return row
+    return _time_steps(t, iterations)
 
 
 def measure_trained(
@@ -78,7 +88,6 @@ def measure_trained(
     evaluation are off so the Gaussian count stays the checkpoint's; the iterations continue
     from the checkpoint's own, where the run's last iterations left every pass."""
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.denormals import flush_denormals
     from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.train.run import RunSpec, build_run
 
@@ -90,19 +99,7 @@ def measure_trained(
             "densify.until": 0, "densify.clean_iterations": (), **(overrides or {}),
         }
     )  # fmt: skip
-    t = build_run(spec, scene, resume_from=checkpoint).trainer
-    with flush_denormals():
-        t.iteration += 1
-        t._step()
-        t.timings.clear()
-        t0 = time.perf_counter()
-        for _ in range(iterations):
-            t.iteration += 1
-            t._step()
-        total = (time.perf_counter() - t0) / iterations
-    row = {k: v / iterations for k, v in t.timings.items()}
-    row.update(gaussians=len(t.gaussians), total_s=total)
-    return row
+    return _time_steps(build_run(spec, scene, resume_from=checkpoint).trainer, iterations)
 
 
 def measure_field(n: int, backend: str, iterations: int) -> dict[str, float | int | str]:
@@ -171,6 +168,11 @@ def measure_photometric(
             "bwd_s": bwd / iterations, "total_s": (fwd + bwd) / iterations}  # fmt: skip
 
 
+def _rounded(row: dict[str, float]) -> dict[str, Any]:
+    """The row with its float figures rounded to 4 decimals, for the table."""
+    return {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
+
+
 def main() -> None:
     """Print and save the table."""
     parser = argparse.ArgumentParser(description=__doc__)
@@ -222,18 +224,12 @@ def main() -> None:
         return
     rows = []
     for n in args.sizes:
-        r: dict[str, Any] = measure(n, args.iterations, overrides=overrides)
-        rows.append(
-            {"model": "random box"}
-            | {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()}
-        )
+        r = measure(n, args.iterations, overrides=overrides)
+        rows.append({"model": "random box"} | _rounded(r))
     if args.trained:
         scene_dir, checkpoint = args.trained
         r = measure_trained(scene_dir, checkpoint, args.iterations, overrides)
-        rows.append(
-            {"model": f"trained {Path(scene_dir).name}"}
-            | {k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()}
-        )
+        rows.append({"model": f"trained {Path(scene_dir).name}"} | _rounded(r))
     cols = ["model", "gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd",
             "photo_render", "losses", "photo_backward", "neural_bwd", "optimizer",
             "setup"]  # fmt: skip
