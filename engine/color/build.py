@@ -1,10 +1,11 @@
 """Build (once, cached) and load the native CPU colour-field extension (hash grid, SH encoding,
-the threads' flush-denormal mode).
+the fused MLPs, the threads' flush-denormal mode).
 
 Built and cached by :mod:`engine.native_build` (compiled at first use, reused by content key)
 from the shared baseline flags; the AVX-512 kernels are a translation unit of their own, called
 only when the CPU reports AVX-512 at run time. ``-ffp-contract=off`` keeps ``x * scale + 0.5``
-two roundings, as in the torch reference, so both pick the same grid cell at boundaries.
+two roundings, as in the torch reference, so both pick the same grid cell at boundaries (the
+MLP kernels write their fused multiply-adds as intrinsics).
 """
 
 from __future__ import annotations
@@ -23,7 +24,16 @@ class HashGridBuildError(EngineError, RuntimeError):
 _EXTENSION = NativeExtension(
     "sparsesplat_hashgrid_cpu",
     Path(__file__).resolve().parent / "cpu",
-    ("hashgrid.cpp", "sh.cpp", "fpmode.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp"),
+    (
+        "hashgrid.cpp",
+        "sh.cpp",
+        "fpmode.cpp",
+        "mlp.cpp",
+        "kernels_avx2.cpp",
+        "kernels_avx512.cpp",
+        "mlp_avx2.cpp",
+        "mlp_avx512.cpp",
+    ),
     [*BASELINE_CFLAGS, NO_FP_CONTRACT],
     on_failure=HashGridBuildError,
     failure_hint="set SPARSESPLAT_HASHGRID=torch to use the torch implementation instead",

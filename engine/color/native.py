@@ -69,3 +69,49 @@ class _SH16(torch.autograd.Function):
 def sh16_native(dirs: Tensor) -> Tensor:
     """(N, 3) float32 CPU unit directions → (N, 16) degree-3 real SH basis (as ``sh_basis``)."""
     return _SH16.apply(dirs.contiguous())
+
+
+class _ColorMLP(torch.autograd.Function):
+    @staticmethod
+    def forward(
+        ctx: Any,
+        code: Tensor,
+        sh: Tensor,
+        w0: Tensor,
+        w1: Tensor,
+        merged: Tensor,
+        w_dir: Tensor,
+        w2: Tensor,
+        scale: float,
+        shift: float,
+    ) -> Tensor:
+        weights = [w.contiguous() for w in (w0, w1, merged, w_dir, w2)]
+        code, sh = code.contiguous(), sh.contiguous()
+        out, h1, h2, h3, s = load_extension().mlp_forward(code, sh, *weights, scale, shift)
+        ctx.save_for_backward(code, sh, *weights, h1, h2, h3, s)
+        ctx.scale = scale
+        return out
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
+        grads = load_extension().mlp_backward(grad.contiguous(), list(ctx.saved_tensors), ctx.scale)
+        need = ctx.needs_input_grad
+        return (*(g if need[i] else None for i, g in enumerate(grads)), None, None)
+
+
+def color_mlp_native(
+    code: Tensor,
+    sh: Tensor,
+    w0: Tensor,
+    w1: Tensor,
+    merged: Tensor,
+    w_dir: Tensor,
+    w2: Tensor,
+    scale: float,
+    shift: float,
+) -> Tensor:
+    """:class:`~sparsesplat.engine.color.mlp.ColorMLP`'s function (same arguments, float32 CPU,
+    hidden width 64, code width 16, 32 or 64) with the fused native kernels: each block of 64
+    points goes through every layer, forward and backward, in cache."""
+    return _ColorMLP.apply(code, sh, w0, w1, merged, w_dir, w2, scale, shift)

@@ -11,8 +11,10 @@ head's first layer, and nothing non-linear sits between them, so
 ``W_c1[:, 16:] @ (W_s3[1:] @ h) = (W_c1[:, 16:] @ W_s3[1:]) @ h``: we multiply the two 64x64
 weights once per call instead of running one more (N, 64) x (64, 64) product forward and two
 backward (about a quarter of the MLP work). Same function and same parameters (their gradients
-flow through the product); only float rounding differs. The inference path with cached
-geometry features keeps the layer-by-layer form.
+flow through the product); only float rounding differs. On the CPU with the native grid, the
+MLPs of that path run as one fused kernel (``native.color_mlp_native``); elsewhere as torch
+products (``mlp.ColorMLP``). The inference path with cached geometry features keeps the
+layer-by-layer form.
 """
 
 from __future__ import annotations
@@ -134,7 +136,14 @@ class NeuralColorField(nn.Module):
         w = _weight(self.color_mlp, 0)
         merged = w[:, 16:] @ _weight(self.sigma_mlp, 4)[1:]  # see the module docstring
         s = self.sigma_mlp
-        return ColorMLP.apply(
+        mlp = ColorMLP.apply
+        # The fused kernels are written for the field's shapes: hidden width 64, code 16/32/64.
+        fits = w.shape[0] == _weight(s, 0).shape[0] == 64 and self.grid.output_dim in (16, 32, 64)
+        if fits and self.grid.uses_native(means):
+            from sparsesplat.engine.color.native import color_mlp_native
+
+            mlp = color_mlp_native
+        return mlp(
             self._encode(means), self._sh(dirs), _weight(s, 0), _weight(s, 2), merged,
             w[:, :16], _weight(self.color_mlp, 2), _OUT_SCALE, _OUT_SHIFT,
         )  # fmt: skip

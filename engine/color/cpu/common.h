@@ -38,3 +38,43 @@ HG_DECLARE(avx2)
 HG_DECLARE(avx512)
 #undef HG_DECLARE
 
+
+// The colour field's MLPs (mlp.cpp, mlp_kernels.h): code (N, code_dim) -> h1 -> h2 (ReLU, 64
+// each); h3 = ReLU(sh (N, 16) @ Wd^T + h2 @ M^T); s = sigmoid(h3 @ W2^T) (N, 3);
+// out = s * scale - shift. Weights as nn.Linear stores them (out, in); *t are transposes.
+constexpr int kMlpHidden = 64;  // hidden width (the field's only one)
+constexpr int kMlpDir = 16;     // direction code width (degree-3 SH)
+constexpr int kMlpBlock = 64;   // points per block that go through all layers together
+
+struct MlpArgs {
+  int code_dim;                          // 16, 32 or 64
+  const float* code;                     // (N, code_dim)
+  const float* sh;                       // (N, 16)
+  const float *w0, *w1, *m, *wd, *w2;    // (64, code_dim), (64, 64), (64, 64), (64, 16), (3, 64)
+  const float *w0t, *w1t, *mt, *wdt;     // (code_dim, 64), (64, 64), (64, 64), (16, 64)
+  float scale, shift;
+  float *h1, *h2, *h3;                   // (N, 64) activations: forward writes, backward reads
+  float* s;                              // (N, 3) sigmoid outputs: likewise
+  float* out;                            // (N, 3) forward output
+  const float* grad;                     // (N, 3) backward: d loss / d out
+  float *g_code, *g_sh;                  // (N, code_dim), (N, 16) backward outputs
+};
+
+// One thread's weight-gradient sums, laid out as the weights.
+struct MlpGrads {
+  float *w0, *w1, *m, *wd, *w2;
+};
+
+#define MLP_DECLARE(NS)                                                                  \
+  namespace NS {                                                                         \
+  void mlp_forward_range(const MlpArgs& a, int64_t begin, int64_t end);                  \
+  void mlp_backward_range(const MlpArgs& a, int64_t begin, int64_t end, const MlpGrads& g, \
+                          float* scratch);                                               \
+  }
+MLP_DECLARE(avx2)
+MLP_DECLARE(avx512)
+#undef MLP_DECLARE
+
+// Whether the AVX-512 variants of the kernels run: the CPU reports avx512f/bw/dq/vl and
+// $SPARSESPLAT_HASHGRID_ISA is not "avx2" (that forces the baseline). hashgrid.cpp.
+bool use_avx512_kernels();

@@ -21,6 +21,23 @@ torch::Tensor sh16_backward(torch::Tensor dirs, torch::Tensor grad);
 // Flush-denormal mode of the compute threads, fpmode.cpp.
 bool set_flush_denormal_all(bool on);
 bool flush_denormal_enabled();
+// The fused colour MLP, mlp.cpp.
+std::vector<torch::Tensor> mlp_forward(torch::Tensor code, torch::Tensor sh, torch::Tensor w0,
+                                       torch::Tensor w1, torch::Tensor m, torch::Tensor wd,
+                                       torch::Tensor w2, double scale, double shift);
+std::vector<torch::Tensor> mlp_backward(torch::Tensor grad, std::vector<torch::Tensor> saved,
+                                        double scale);
+
+bool use_avx512_kernels() {
+  static const bool use = [] {
+    const char* force = std::getenv("SPARSESPLAT_HASHGRID_ISA");
+    if (force && std::string(force) == "avx2") return false;
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+           __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
+  }();
+  return use;
+}
 
 namespace {
 
@@ -32,18 +49,9 @@ struct Variant {
   LevelFn bwd;
 };
 
-bool cpu_has_avx512() {
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
-         __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
-}
-
-// The kernel variant for this CPU; SPARSESPLAT_HASHGRID_ISA=avx2 forces the baseline.
+// The hash grid's level kernels for this CPU (use_avx512_kernels: common.h).
 Variant pick_variant() {
-  const char* force = std::getenv("SPARSESPLAT_HASHGRID_ISA");
-  const bool want_avx2 = force && std::string(force) == "avx2";
-  if (!want_avx2 && cpu_has_avx512())
-    return {"avx512", avx512::forward_level, avx512::backward_level};
+  if (use_avx512_kernels()) return {"avx512", avx512::forward_level, avx512::backward_level};
   return {"avx2", avx2::forward_level, avx2::backward_level};
 }
 
@@ -332,6 +340,10 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("backward", &backward, "Gradients w.r.t. the inputs and the (dense) table");
   m.def("sh16_forward", &sh16_forward, "Degree-3 SH basis (N, 3) unit dirs -> (N, 16)");
   m.def("sh16_backward", &sh16_backward, "Gradient of sh16_forward w.r.t. the directions");
+  m.def("mlp_forward", &mlp_forward,
+        "Colour MLPs: (out, h1, h2, h3, s) from the grid and direction codes and the weights");
+  m.def("mlp_backward", &mlp_backward,
+        "Gradients of the colour MLPs: (code, sh, w0, w1, m, wd, w2) from the saved tensors");
   m.def("set_flush_denormal_all", &set_flush_denormal_all,
         "Flush denormals to zero on the calling and the OpenMP threads; returns the old state");
   m.def("flush_denormal_enabled", &flush_denormal_enabled,

@@ -1,0 +1,4 @@
+// Fused MLP kernels for the x86-64-v3 baseline (AVX2 + FMA, the flags given to the whole build).
+#define MLP_NS avx2
+#define MLP_AVX512 0
+#include "mlp_kernels.h"
