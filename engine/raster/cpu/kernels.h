@@ -292,11 +292,13 @@ static inline uint32_t row_hit_mask(const GaussRec& g, int y0, int x0, int r0, i
 }
 
 // Forward blending of one tile. acc is scratch of (C + 1) * 256 floats (64-byte aligned).
-void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
+// CC: the channel count when known at compile time (the channel loops unroll), -1 for any.
+template <int CC>
+static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* acc) {
   const int x0 = tile_x * TILE, y0 = tile_y * TILE;
   const int rows = a.height - y0 < TILE ? a.height - y0 : TILE;
   const int cols = a.width - x0 < TILE ? a.width - x0 : TILE;
-  const int C = a.channels;
+  const int C = CC >= 0 ? CC : a.channels;
   vf* accv = reinterpret_cast<vf*>(acc);  // [(C + 1)][16 rows]
   for (int i = 0; i < (C + 1) * TILE; ++i) accv[i] = vf{};
   vf T[TILE];
@@ -375,6 +377,14 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
   a.blended[tile_y * a.tiles_x + tile_x] = blended;
 }
 
+void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
+  switch (a.channels) {  // the channel counts the trainer uses
+    case 0: return forward_tile_impl<0>(a, tile_x, tile_y, acc);
+    case 3: return forward_tile_impl<3>(a, tile_x, tile_y, acc);
+    default: return forward_tile_impl<-1>(a, tile_x, tile_y, acc);
+  }
+}
+
 // Backward of one tile: walks the tile's list back to front, undoing the transmittance, and adds
 // per-Gaussian gradients (layout GradLayout) into grad (this thread's buffer, indexed by rank).
 // scratch holds (2 C + 3) * 256 + S * 16 floats (64-byte aligned). Geo = false skips the 2D mean
@@ -438,7 +448,9 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       const int32_t ahead = a.list[begin + jj - kPrefetch];
       __builtin_prefetch(a.recs + ahead);
       __builtin_prefetch(a.feats + (int64_t)ahead * C);
+      // A row of S floats may straddle two cache lines: fetch both ends.
       __builtin_prefetch(grad + (int64_t)ahead * S, 1);
+      __builtin_prefetch(grad + (int64_t)ahead * S + (S - 1), 1);
     }
     const int32_t rank = a.list[begin + jj];
     const GaussRec& g = a.recs[rank];
