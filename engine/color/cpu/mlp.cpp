@@ -16,7 +16,9 @@ namespace {
 using FwdFn = void (*)(const MlpArgs&, int64_t, int64_t);
 using BwdFn = void (*)(const MlpArgs&, int64_t, int64_t, const MlpGrads&, float*);
 
-FwdFn forward_fn() { return use_avx512_kernels() ? avx512::mlp_forward_range : avx2::mlp_forward_range; }
+FwdFn forward_fn() {
+  return use_avx512_kernels() ? avx512::mlp_forward_range : avx2::mlp_forward_range;
+}
 BwdFn backward_fn() {
   return use_avx512_kernels() ? avx512::mlp_backward_range : avx2::mlp_backward_range;
 }
@@ -43,6 +45,7 @@ int n_threads(int64_t n) {
 MlpArgs weights_args(const torch::Tensor& code, const torch::Tensor& sh, const torch::Tensor& w0,
                      const torch::Tensor& w1, const torch::Tensor& m, const torch::Tensor& wd,
                      const torch::Tensor& w2) {
+  TORCH_CHECK(code.dim() == 2, "code: expected an (N, width) matrix, got ", code.sizes());
   const int64_t d = code.size(1);
   TORCH_CHECK(d == 16 || d == 32 || d == 64, "code: width ", d, " not supported (16, 32, 64)");
   check(code, "code", -1, d);
