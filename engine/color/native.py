@@ -5,7 +5,8 @@ Jacobian d out / d x (levels, N, features, 3) it computes from the rows it gathe
 backward recomputes the corner indices and weights (cheap next to the memory traffic), scatters
 the dense table gradient and contracts the upstream gradient with the Jacobian, each only when
 autograd asks for it. SH: the 16-value direction encoding and its
-analytic gradient, each one fused pass.
+analytic gradient, each one fused pass. MLPs: the colour field's two MLPs forward and backward,
+block by block (cpu/mlp_kernels.h), saving the activations their backward needs.
 """
 
 from __future__ import annotations
