@@ -72,7 +72,11 @@ def sh16_native(dirs: Tensor) -> Tensor:
     return _SH16.apply(dirs.contiguous())
 
 
-class _ColorMLP(torch.autograd.Function):
+class NativeColorMLP(torch.autograd.Function):
+    """``NativeColorMLP.apply`` takes and returns what ``mlp.ColorMLP.apply`` does (float32 CPU,
+    hidden width 64, code width 16, 32 or 64) and runs the fused native kernels: each block of
+    64 points goes through every layer, forward and backward, in cache."""
+
     @staticmethod
     def forward(
         ctx: Any,
@@ -99,20 +103,3 @@ class _ColorMLP(torch.autograd.Function):
         grads = load_extension().mlp_backward(grad.contiguous(), list(ctx.saved_tensors), ctx.scale)
         need = ctx.needs_input_grad
         return (*(g if need[i] else None for i, g in enumerate(grads)), None, None)
-
-
-def color_mlp_native(
-    code: Tensor,
-    sh: Tensor,
-    w0: Tensor,
-    w1: Tensor,
-    merged: Tensor,
-    w_dir: Tensor,
-    w2: Tensor,
-    scale: float,
-    shift: float,
-) -> Tensor:
-    """:class:`~sparsesplat.engine.color.mlp.ColorMLP`'s function (same arguments, float32 CPU,
-    hidden width 64, code width 16, 32 or 64) with the fused native kernels: each block of 64
-    points goes through every layer, forward and backward, in cache."""
-    return _ColorMLP.apply(code, sh, w0, w1, merged, w_dir, w2, scale, shift)

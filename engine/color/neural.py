@@ -12,7 +12,7 @@ head's first layer, and nothing non-linear sits between them, so
 weights once per call instead of running one more (N, 64) x (64, 64) product forward and two
 backward (about a quarter of the MLP work). Same function and same parameters (their gradients
 flow through the product); only float rounding differs. On the CPU with the native grid, the
-MLPs of that path run as one fused kernel (``native.color_mlp_native``); elsewhere as torch
+MLPs of that path run as one fused kernel (``native.NativeColorMLP``); elsewhere as torch
 products (``mlp.ColorMLP``). The inference path with cached geometry features keeps the
 layer-by-layer form.
 """
@@ -140,9 +140,9 @@ class NeuralColorField(nn.Module):
         # The fused kernels are written for the field's shapes: hidden width 64, code 16/32/64.
         fits = w.shape[0] == _weight(s, 0).shape[0] == 64 and self.grid.output_dim in (16, 32, 64)
         if fits and self.grid.uses_native(means):
-            from sparsesplat.engine.color.native import color_mlp_native
+            from sparsesplat.engine.color.native import NativeColorMLP
 
-            mlp = color_mlp_native
+            mlp = NativeColorMLP.apply
         return mlp(
             self._encode(means), self._sh(dirs), _weight(s, 0), _weight(s, 2), merged,
             w[:, :16], _weight(self.color_mlp, 2), _OUT_SCALE, _OUT_SHIFT,

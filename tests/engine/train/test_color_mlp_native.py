@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 
 from sparsesplat.engine.color.mlp import ColorMLP
-from sparsesplat.engine.color.native import color_mlp_native
+from sparsesplat.engine.color.native import NativeColorMLP
 from tests.engine.numerics import (
     DECISION_SAFETY,
     FLOOR_ULPS,
@@ -105,7 +105,7 @@ def test_native_mlp_matches_reference(n: int, width: int, seed: int) -> None:
     not whole blocks (64) and chunks (1024), and each supported code width."""
     inputs = _inputs(n, width, seed)
     upstream = _masked_upstream(inputs, seed)
-    got = _run(color_mlp_native, inputs, upstream, torch.float32)
+    got = _run(NativeColorMLP.apply, inputs, upstream, torch.float32)
     _check(got, inputs, upstream, seed, f"seed={seed} n={n} width={width}")
 
 
@@ -114,7 +114,7 @@ def test_the_check_catches_one_wrong_weight_gradient_entry(seed: int) -> None:
     itself, fails the rule: the comparison above can fail."""
     inputs = _inputs(600, 32, seed)
     upstream = _masked_upstream(inputs, seed)
-    got = _run(color_mlp_native, inputs, upstream, torch.float32)
+    got = _run(NativeColorMLP.apply, inputs, upstream, torch.float32)
     want = _run(ColorMLP.apply, inputs, upstream, torch.float64)
     t32 = _run(ColorMLP.apply, inputs, upstream, torch.float32)
     bad = got[4].clone()
@@ -133,9 +133,9 @@ def test_native_mlp_does_not_depend_on_the_thread_count(seed: int) -> None:
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        two = _run(color_mlp_native, inputs, upstream, torch.float32)
+        two = _run(NativeColorMLP.apply, inputs, upstream, torch.float32)
         torch.set_num_threads(1)
-        one = _run(color_mlp_native, inputs, upstream, torch.float32)
+        one = _run(NativeColorMLP.apply, inputs, upstream, torch.float32)
     finally:
         torch.set_num_threads(threads)
     for name, a, b in zip(NAMES, one, two, strict=True):
@@ -147,13 +147,13 @@ def test_no_points_and_a_nan_row() -> None:
     point's colour NaN (as torch's ReLU does, so a run's finiteness check sees it) and leaves
     the other points' colours exactly as without it."""
     empty = _inputs(0, 32, 0)
-    got = _run(color_mlp_native, empty, torch.zeros(0, 3), torch.float32)
+    got = _run(NativeColorMLP.apply, empty, torch.zeros(0, 3), torch.float32)
     assert got[0].shape == (0, 3) and got[1].shape == (0, 32)
     assert all(not g.any() for g in got[3:])
     inputs = _inputs(200, 32, 1)
-    clean = _run(color_mlp_native, inputs, torch.ones(200, 3), torch.float32)[0]
+    clean = _run(NativeColorMLP.apply, inputs, torch.ones(200, 3), torch.float32)[0]
     inputs[0][17, 5] = float("nan")
-    dirty = _run(color_mlp_native, inputs, torch.ones(200, 3), torch.float32)[0]
+    dirty = _run(NativeColorMLP.apply, inputs, torch.ones(200, 3), torch.float32)[0]
     assert dirty[17].isnan().all()
     others = torch.arange(200) != 17
     assert torch.equal(dirty[others], clean[others])
@@ -162,11 +162,11 @@ def test_no_points_and_a_nan_row() -> None:
 _ISA_SCRIPT = """
 import json, sys, torch
 from sparsesplat.engine.color.build import load_extension
-from sparsesplat.engine.color.native import color_mlp_native
+from sparsesplat.engine.color.native import NativeColorMLP
 from tests.engine.train.test_color_mlp_native import _inputs, _masked_upstream, _run
 seed = int(sys.argv[1])
 inputs = _inputs(1500, 32, seed)
-got = _run(color_mlp_native, inputs, _masked_upstream(inputs, seed), torch.float32)
+got = _run(NativeColorMLP.apply, inputs, _masked_upstream(inputs, seed), torch.float32)
 torch.save(got, sys.argv[2])
 print(json.dumps({"variant": load_extension().variant()}))
 """
