@@ -50,7 +50,9 @@ _FORWARD_FACING: dict[str, Any] = {
     # (43-50k on flower and horns), and 3000 iterations took 501-617 s of training on a
     # 2-core Ice Lake-class Xeon (the slowest on a noisy stretch of that machine; reruns: see
     # docs/experiments/2026-11-26-run-length.md). 2700 iterations saved a tenth of the time
-    # and cost 0.007 LPIPS over 3 seeds of both scenes, so the length stays.
+    # and cost 0.007 LPIPS over 3 seeds of both scenes, so the length stays. 3300 gained only
+    # 0.003 LPIPS, lost 0.12 dB on horns and took 12 % longer
+    # (docs/experiments/2026-11-26-sapphire-rapids-checks.md).
     "iterations": 3000,
     "init.method": "dense",
     # 8000 start points from the pixels the plane sweep is at least 0.7 sure of (the random
