@@ -156,13 +156,24 @@ def test_constant_depth_priors(where: str) -> None:
     assert math.isfinite(res.metrics["psnr"]) and res.n_gaussians > 0
 
 
-def test_scene_scale_does_not_change_quality(seed: int) -> None:
+@pytest.mark.parametrize("scene_seed", [0, 1, 2])
+def test_scene_scale_does_not_change_quality(scene_seed: int) -> None:
+    # The same scene at 1e-3x and 1e3x its size must train to the same held-out PSNR: every
+    # length, learning rate and threshold is relative to the scene's extent. Scaling changes
+    # only float rounding. Densification is off: its clone/split/prune decisions are
+    # thresholds on float sums, a last-bit difference flips a few of them, and over 50
+    # iterations that grows chaotically (up to 0.83 dB with it on, random seed 485021867).
+    # Without it the three scales agreed to within 0.015 dB over scene seeds 0-11; the bound
+    # leaves a factor of about 7 for other CPUs' rounding.
     psnrs = {}
     for scale in (1.0, 1e-3, 1e3):
-        scene, priors = make_scene(seed=seed, scale=scale)
-        psnrs[scale] = Trainer(scene, small(iterations=50), priors).run().metrics["psnr"]
+        torch.manual_seed(scene_seed)
+        random.seed(scene_seed)
+        scene, priors = make_scene(seed=scene_seed, scale=scale)
+        cfg = small(iterations=50, densify_until=0)
+        psnrs[scale] = Trainer(scene, cfg, priors).run().metrics["psnr"]
     spread = max(psnrs.values()) - min(psnrs.values())
-    assert spread < 0.5, f"seed {seed}: PSNR by scale {psnrs}"
+    assert spread < 0.1, f"scene seed {scene_seed}: PSNR by scale {psnrs}"
 
 
 def test_two_trainers_in_one_process_do_not_interfere(seed: int) -> None:
