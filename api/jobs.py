@@ -60,8 +60,9 @@ class JobSpec(BaseModel):
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
     """Random seed of the run."""
     iterations: int | None = Field(default=None, ge=1, le=100_000)
-    """Iterations to train; None: the preset's default (1500 for every preset). The preset's
-    6000-iteration reference schedule is compressed to the length asked for."""
+    """Iterations to train; None: the preset's default length for the scene's camera layout
+    (``sparsesplat train --help`` lists them). The preset's 6000-iteration reference schedule
+    is compressed to the length asked for."""
     time_budget_s: float | None = Field(default=None, gt=0, le=7 * 24 * 3600)
     """Train until this many training seconds are spent instead of for ``iterations`` (a
     deadline): the preset's schedule (learning-rate decay, densification, depth starts) follows

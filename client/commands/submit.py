@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     spec = parser.add_argument_group("job spec")
     spec.add_argument("--spec", help="JobSpec as JSON text or a .json file")
     spec.add_argument(
-        "--iterations", type=int, help="iterations to train (default: the preset's, 1500)"
+        "--iterations", type=int, help="iterations to train (default: the preset's for the scene)"
     )
     spec.add_argument("--time-budget", type=float, metavar="S", help="training seconds instead")
     spec.add_argument("--preset", choices=list(get_args(PresetName)))

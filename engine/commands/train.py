@@ -38,11 +38,11 @@ _PRESET_HELP = {
     "cloud, 3000 iterations; otherwise (an orbit) the random box with opacity decay, 5000 "
     "iterations",
     "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views; 1500 iterations",
-    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box; "
-    "1500 iterations",
+    "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box, "
+    "opacity decay; 4500 iterations",
     "object": "an object on an empty background (images with alpha, or a plain white/black "
     "backdrop), any unit: the Blender recipe with the init box from the cameras; "
-    "1500 iterations",
+    "4500 iterations",
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
     "recipe (forward-facing: from the plane-sweep point cloud, 3000 iterations; otherwise "
     "with opacity decay, 5000 iterations)",

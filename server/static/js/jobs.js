@@ -256,7 +256,7 @@ function jobForm() {
     { name: "length" },
     el("option", { value: "budget" }, "time budget (seconds)"),
     el("option", { value: "iterations" }, "iterations"),
-    el("option", { value: "preset" }, "the preset's (1500 iterations)"),
+    el("option", { value: "preset" }, "the preset's default"),
   );
   const lengthValue = el("input#job-length-value", { type: "number", min: "1", step: "any", value: "600" });
   const interval = el("input#job-record-interval", { type: "number", min: "0.1", step: "any", placeholder: "preset's (60)" });

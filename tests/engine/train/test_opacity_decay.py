@@ -11,6 +11,7 @@ import torch
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.train.presets import PRESET_ITERATIONS, preset
 
 from .test_trainer import small
 
@@ -57,3 +58,15 @@ def test_decay_keeps_extreme_logits_finite() -> None:
 def test_decay_factor_is_checked(bad: float) -> None:
     with pytest.raises(ConfigError, match="opacity_decay"):
         small(**{"densify.opacity_decay": bad})
+
+
+def test_which_presets_decay_by_default() -> None:
+    """The Blender recipe (and ``object``, its unit-free twin) decays opacity; the DTU preset
+    and the LLFF-style base recipe do not (docs/experiments/2026-11-27-blender-opacity-decay.md).
+    The window is the whole run in the Blender recipe: densification runs to its end."""
+    for name in ("blender", "object"):
+        config = preset(name)
+        assert config.densify.opacity_decay == 0.995, name
+        assert config.densify.until == config.iterations == PRESET_ITERATIONS[name], name
+    for name in ("dtu", "llff", "default"):
+        assert preset(name).densify.opacity_decay == 1.0, name
