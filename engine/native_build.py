@@ -189,6 +189,18 @@ def stage_sources(source_dir: Path, files: Sequence[str], dest: Path) -> None:
         os.replace(tmp, target)
 
 
+_EXTENSIONS: list[NativeExtension] = []
+"""Every extension declared in this process (see :func:`loaded_variants`)."""
+
+
+def loaded_variants() -> dict[str, str]:
+    """Description → instruction-set variant of each native extension this process has loaded
+    (e.g. ``{"CPU rasterizer": "avx512"}``); none is built here. Benchmarks record it with the
+    machine, since the same CPU runs different kernels when ``SPARSESPLAT_*_ISA`` forces the
+    AVX2 baseline, and a figure is only comparable with one taken on the same kernels."""
+    return {e.description: str(m.variant()) for e in _EXTENSIONS if (m := e.loaded) is not None}
+
+
 class NativeExtension:
     """A lazily built extension: ``load()`` compiles on the first call and caches the module."""
 
@@ -216,6 +228,7 @@ class NativeExtension:
         self.description = description
         self._lock = threading.Lock()
         self._module: ModuleType | None = None
+        _EXTENSIONS.append(self)
 
     def files(self) -> list[str]:
         """Sources and headers the build reads (see :func:`staged_files`)."""

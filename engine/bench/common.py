@@ -24,7 +24,8 @@ def _cpu_model() -> str:
 
 
 def machine_info() -> dict[str, Any]:
-    """CPU model, logical cores, torch threads and versions of the process running the bench."""
+    """CPU model, logical cores, torch threads and versions of the process running the bench,
+    and the instruction-set variant of each native kernel it has loaded (``kernels``)."""
     info: dict[str, Any] = {
         "cpu": _cpu_model(),
         "cores": os.cpu_count(),
@@ -39,6 +40,9 @@ def machine_info() -> dict[str, Any]:
         info["cuda"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
     except ImportError:
         info["torch"] = None
+    from sparsesplat.engine.native_build import loaded_variants
+
+    info["kernels"] = loaded_variants()
     return info
 
 
@@ -70,7 +74,11 @@ def format_table(rows: list[dict[str, Any]], columns: list[str]) -> str:
 def write_results(name: str, rows: list[dict[str, Any]], columns: list[str]) -> Path:
     """Print ``rows`` as a table and write bench-results/<name>.json; returns the file path."""
     info = machine_info()
-    print(f"# {name} on {info['cpu']} ({info['cores']} cores, torch {info.get('torch')})")
+    kernels = ", ".join(f"{k} {v}" for k, v in info["kernels"].items())
+    print(
+        f"# {name} on {info['cpu']} ({info['cores']} cores, torch {info.get('torch')}"
+        + (f"; kernels: {kernels})" if kernels else ")")
+    )
     print(format_table(rows, columns))
     out_dir = results_dir()
     out_dir.mkdir(parents=True, exist_ok=True)
