@@ -27,6 +27,7 @@ import shutil
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -189,8 +190,9 @@ def stage_sources(source_dir: Path, files: Sequence[str], dest: Path) -> None:
         os.replace(tmp, target)
 
 
-_EXTENSIONS: list[NativeExtension] = []
-"""Every extension declared in this process (see :func:`loaded_variants`)."""
+_EXTENSIONS: list[weakref.ref[NativeExtension]] = []
+"""Every extension declared in this process, in order (see :func:`loaded_variants`); weak, so
+a short-lived one (the build tests' twins) does not outlive its last user."""
 
 
 def loaded_variants() -> dict[str, str]:
@@ -198,7 +200,8 @@ def loaded_variants() -> dict[str, str]:
     (e.g. ``{"CPU rasterizer": "avx512"}``); none is built here. Benchmarks record it with the
     machine, since the same CPU runs different kernels when ``SPARSESPLAT_*_ISA`` forces the
     AVX2 baseline, and a figure is only comparable with one taken on the same kernels."""
-    return {e.description: str(m.variant()) for e in _EXTENSIONS if (m := e.loaded) is not None}
+    live = [e for ref in _EXTENSIONS if (e := ref()) is not None]
+    return {e.description: str(m.variant()) for e in live if (m := e.loaded) is not None}
 
 
 class NativeExtension:
@@ -228,7 +231,7 @@ class NativeExtension:
         self.description = description
         self._lock = threading.Lock()
         self._module: ModuleType | None = None
-        _EXTENSIONS.append(self)
+        _EXTENSIONS.append(weakref.ref(self))
 
     def files(self) -> list[str]:
         """Sources and headers the build reads (see :func:`staged_files`)."""
