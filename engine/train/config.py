@@ -28,6 +28,8 @@ AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
 ConsistencyPartnersName = Literal["nearest", "all"]
 """Which training views the warp-consistency term warps into the current one."""
+PartnerDepthName = Literal["render", "last"]
+"""Where the warp-consistency term's occlusion check takes the partner view's depth from."""
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 """An axis-aligned box as (lowest corner, highest corner)."""
@@ -405,7 +407,12 @@ class ConsistencyConfig:
     start: int = 0
     """The term applies for iterations > this."""
     occlusion: bool = True
-    """Render the partner's depth (no gradient) for the term's occlusion check."""
+    """Check occlusion with the partner view's depth (``partner_depth`` says where from)."""
+    partner_depth: PartnerDepthName = "render"
+    """``render``: a no-gradient depth render of the partner view each time (one more pass per
+    partner and iteration); ``last``: the depth of the partner's own latest photometric
+    render, kept when that view was trained (free, and a few iterations old: with 3 views each
+    is trained every third iteration). A partner not trained yet is rendered."""
     partners: ConsistencyPartnersName = "nearest"
     """``nearest``: the one training view whose camera centre is nearest; ``all``: every other
     training view, the term being the mean over them (one more no-gradient depth render and

@@ -154,10 +154,18 @@ def warp_consistency_loss(
     return diff.masked_fill(~valid, 0.0).sum() / count
 
 
+def seen_depth(depth: Tensor, alpha: Tensor) -> Tensor:
+    """(H, W) view-space z a render sees, from its (1, H, W) alpha-blended ``depth`` and
+    ``alpha``: depth / alpha where alpha >= 0.5, else -1 (which passes the occlusion check)."""
+    a = alpha[0]
+    return torch.where(a >= 0.5, depth[0] / a.clamp_min(1e-6), -1.0)
+
+
 class WarpConsistency:
     """The trainer's consistency part (hook ``extra_loss``): each training view is paired with
     the other training view whose camera centre is nearest, or with every other training view
-    (``partners='all'``; the term is then the mean over them). No state."""
+    (``partners='all'``; the term is then the mean over them). Its one state, with
+    ``partner_depth='last'``: each view's depth from its latest photometric render."""
 
     def __init__(
         self,
@@ -185,18 +193,23 @@ class WarpConsistency:
             for i in range(len(cameras))
         ]
         """Partner views of each training view, nearest first (empty with a single view)."""
+        self.last_depth: list[Tensor | None] = [None] * len(cameras)
+        """``partner_depth='last'``: each view's seen depth (:func:`seen_depth`) from
+        its latest photometric render; None until the view is trained with the term on."""
 
-    def _seen_depth(self, gaussians: Gaussians, camera: Camera) -> Tensor:
-        """View-space z the partner camera sees (its no-gradient depth render / alpha; -1 where
-        its alpha is below 0.5, which passes the occlusion check)."""
+    def _partner_depth(self, gaussians: Gaussians, partner: int) -> Tensor:
+        """View-space z the partner camera sees: its depth kept from its latest photometric
+        render (``partner_depth='last'``, once it has one), else a no-gradient depth render."""
+        kept = self.last_depth[partner]
+        if self.settings.partner_depth == "last" and kept is not None:
+            return kept
         g = gaussians
         with torch.no_grad():
             p = self.raster(
                 g.means, g.log_scales, g.quats, g.opacity_logits,
-                g.means.new_zeros(len(g), 0), camera, None,
+                g.means.new_zeros(len(g), 0), self.cameras[partner], None,
             )  # fmt: skip
-            a = p.alpha[0]
-            return torch.where(a >= 0.5, p.depth[0] / a.clamp_min(1e-6), -1.0)
+            return seen_depth(p.depth, p.alpha)
 
     def extra_loss(
         self, iteration: int, gaussians: Gaussians, out: RasterOutput, view: TrainView
@@ -207,6 +220,10 @@ class WarpConsistency:
         s, partners = self.settings, self.partners[view.index]
         if self.clock.position(iteration) <= s.start or not partners:
             return None
+        if s.occlusion and s.partner_depth == "last":
+            # Kept for when this view is another's partner (before its own partners are
+            # looked up: a view is never its own partner).
+            self.last_depth[view.index] = seen_depth(out.depth.detach(), out.alpha.detach())
         losses = [
             warp_consistency_loss(
                 self.images[view.index],
@@ -215,7 +232,7 @@ class WarpConsistency:
                 view.camera,
                 self.cameras[j],
                 alpha=out.alpha,
-                source_depth=self._seen_depth(gaussians, self.cameras[j]) if s.occlusion else None,
+                source_depth=self._partner_depth(gaussians, j) if s.occlusion else None,
             )
             for j in partners
         ]

@@ -19,6 +19,7 @@ from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train import Trainer, preset
 from sparsesplat.engine.train import trainer as trainer_module
+from sparsesplat.engine.train.consistency import seen_depth, warp_consistency_loss
 
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]
@@ -407,3 +408,53 @@ def look_at_camera(angle: float, like: Camera) -> Camera:
     eye = torch.tensor([4.0 * math.sin(angle), 0.0, -4.0 * math.cos(angle)])
     return Camera(look_at(eye, torch.zeros(3)), like.fx, like.fy, like.cx, like.cy,
                   like.width, like.height)  # fmt: skip
+
+
+def test_consistency_last_partner_depth_reuses_the_partners_own_render() -> None:
+    """``partner_depth='last'``: a partner trained before is not rendered again; its seen depth
+    is the one of its own photometric render. A partner not trained yet is rendered."""
+    scene, depths = make_scene(seed=4, n_train=3)
+    cfg = small(
+        consistency_weight=0.5, consistency_start=0, **{"consistency.partner_depth": "last"}
+    )
+    t = Trainer(scene, cfg, depths)
+    c = t.consistency
+    assert c is not None
+    calls = []
+    render = c.raster
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return render(*args, **kwargs)
+
+    c.raster = counted
+    g = t.gaussians
+    views = {v.index: v for v in (t._next_view() for _ in range(3))}
+
+    def photometric(index: int) -> Any:
+        cam = views[index].camera
+        return t._raster(
+            g.means, g.log_scales, g.quats, g.opacity_logits,
+            t.color.colors(g, cam.center), cam, t.background,
+        )  # fmt: skip
+
+    with torch.no_grad():
+        first = 0
+        partner = c.partners[first][0]
+        out_first = photometric(first)
+        assert c.extra_loss(1, g, out_first, views[first]) is not None
+        assert len(calls) == 1  # the partner was not trained yet: rendered
+        out_partner = photometric(partner)
+        assert c.extra_loss(1, g, out_partner, views[partner]) is not None
+        kept = c.last_depth[partner]
+        assert kept is not None and torch.equal(
+            kept, seen_depth(out_partner.depth, out_partner.alpha)
+        )
+        before = len(calls)
+        again = c.extra_loss(1, g, out_first, views[first])
+        assert len(calls) == before  # the partner's own render was reused
+        expected = 0.5 * warp_consistency_loss(
+            t.images[first], t.images[partner], out_first.depth, views[first].camera,
+            views[partner].camera, alpha=out_first.alpha, source_depth=kept,
+        )  # fmt: skip
+        assert again is not None and torch.equal(again, expected)
