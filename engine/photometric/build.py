@@ -22,7 +22,7 @@ class PhotometricBuildError(EngineError, RuntimeError):
 _EXTENSION = NativeExtension(
     "sparsesplat_photometric_cpu",
     Path(__file__).resolve().parent / "cpu",
-    ("photometric.cpp", "depth_norm.cpp"),
+    ("photometric.cpp", "depth_norm.cpp", "warp.cpp"),
     [*BASELINE_CFLAGS, NO_FP_CONTRACT],
     on_failure=PhotometricBuildError,
     failure_hint="set SPARSESPLAT_PHOTOMETRIC=torch to use the torch implementation instead",

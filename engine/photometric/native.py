@@ -1,5 +1,5 @@
 """Autograd wrappers and backend choice of the native per-pixel losses (engine/photometric/cpu/):
-the photometric loss and the patch-normalized depth loss.
+the photometric loss, the patch-normalized depth loss and the warp-consistency L1.
 
 The loss is a scalar, so the native forward computes the gradient with respect to the
 prediction in the same call and saves it; the backward only scales it by the upstream scalar.
@@ -143,3 +143,73 @@ def depth_norm_native(
         "depth_norm_forward", depth.contiguous(), target.detach().contiguous(), int(patch),
         float(margin), bool(global_mode), float(std_floor),
     )  # fmt: skip
+
+
+class _WarpL1(torch.autograd.Function):
+    """The warp-consistency L1 (cpu/warp.cpp): the forward returns the mean and the per-pixel
+    gradient numerators of its sum with respect to depth and alpha; the backward scales them by
+    upstream / count."""
+
+    @staticmethod
+    def forward(ctx: Any, depth: Tensor, alpha: Tensor | None, *args: Any) -> Tensor:
+        need_grad = bool(ctx.needs_input_grad[0] or ctx.needs_input_grad[1])
+        loss, count, gd, ga = load_extension().warp_l1_forward(depth, alpha, *args, need_grad)
+        ctx.count = int(count)
+        if need_grad:
+            ctx.save_for_backward(gd, ga if alpha is not None else None)
+        ctx.n_args = len(args)
+        return loss
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, upstream: Tensor) -> tuple[Tensor | None, ...]:
+        gd, ga = ctx.saved_tensors
+        scale = upstream / max(ctx.count, 1)
+        return (gd * scale, None if ga is None else ga * scale, *([None] * ctx.n_args))
+
+
+def warp_l1_suited(*maps: Tensor | None) -> bool:
+    """Whether the warp-consistency L1 of these maps (depth, alpha, photos, the source's
+    depth; None for an absent one) runs natively: float32 CPU tensors, unless
+    $SPARSESPLAT_PHOTOMETRIC says torch (``native`` makes unsuited inputs an error)."""
+    choice = backend()
+    if choice == "torch":
+        return False
+    given = [m for m in maps if m is not None]
+    suited = all(m.device.type == "cpu" and m.dtype == torch.float32 for m in given)
+    if choice == "native" and not suited:
+        described = ", ".join(f"{m.dtype} on {m.device}" for m in given)
+        raise ValueError(f"${BACKEND_ENV}=native needs float32 CPU maps; got {described}")
+    return suited
+
+
+def warp_l1_native(
+    depth: Tensor,
+    alpha: Tensor | None,
+    reference_image: Tensor,
+    source_image: Tensor,
+    source_depth: Tensor | None,
+    reference_intrinsics: tuple[float, float, float, float],
+    source_intrinsics: tuple[float, float, float, float],
+    rotation: Tensor,
+    translation: Tensor,
+    min_alpha: float,
+    occlusion_tolerance: float,
+) -> Tensor:
+    """``engine.train.consistency.warp_consistency_loss`` in one native pass: ``depth`` and
+    ``alpha`` (H, W) (differentiable), the (3, H, W) and (3, Hs, Ws) photos, the source's seen
+    depth (Hs, Ws) or None, each camera's (fx, fy, cx, cy), and the reference-to-source
+    ``rotation`` (3, 3) and ``translation`` (3,)."""
+    return _WarpL1.apply(
+        depth.contiguous(),
+        None if alpha is None else alpha.contiguous(),
+        reference_image.detach().contiguous(),
+        source_image.detach().contiguous(),
+        None if source_depth is None else source_depth.detach().contiguous(),
+        [float(k) for k in reference_intrinsics],
+        [float(k) for k in source_intrinsics],
+        [float(r) for r in rotation.reshape(-1).tolist()],
+        [float(t) for t in translation.reshape(-1).tolist()],
+        float(min_alpha),
+        float(occlusion_tolerance),
+    )

@@ -13,9 +13,11 @@ the reference photo at p. The loss is the mean L1 difference over the pixels whe
   something in front of it (``|z_src - depth_src(q)| <= occlusion_tolerance * z_src``).
 
 Gradients reach the rendered depth (and alpha) of the reference view only: the photos are
-data, the masks are decisions taken without gradient. It is the self-supervised stereo
-signal of sparse-view methods (e.g. the warping losses of CoR-GS / LoopSparseGS) without a
-flow or matching network.
+data, the masks are decisions taken without gradient. It is the self-supervised stereo signal
+of sparse-view methods (e.g. the warping losses of CoR-GS / LoopSparseGS) without a flow or
+matching network. float32 CPU inputs take one native pass for the value and both gradients
+(engine/photometric/cpu/warp.cpp); the torch code below is the reference it is tested against,
+and the path for other devices and dtypes.
 
 Where it runs: in the photometric pass, which already renders depth and alpha for the current
 view (``RasterOutput.depth``, ``.alpha``); the partner view is another training view (e.g. the
@@ -32,6 +34,7 @@ backward::
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -40,6 +43,7 @@ from torch import Tensor
 from sparsesplat.engine.camera import Camera, pixel_rays
 from sparsesplat.engine.errors import CameraError
 from sparsesplat.engine.gaussians import Gaussians
+from sparsesplat.engine.photometric import native as photometric_native
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.train.config import ConsistencyConfig
 from sparsesplat.engine.train.parts import Raster, TrainView
@@ -127,8 +131,24 @@ def warp_consistency_loss(
             f"warp: source image {tuple(source_image.shape)} is not (3, {source.height}, "
             f"{source.width})"
         )
-    if alpha is not None:
-        a = alpha.reshape(h, w)
+    if tuple(d.shape) != (h, w):
+        raise CameraError(
+            f"warp: depth {tuple(d.shape)} does not match the reference camera {h}x{w}"
+        )
+    a = None if alpha is None else alpha.reshape(h, w)
+    sd = None
+    if source_depth is not None:
+        sd = source_depth.detach().reshape(source.height, source.width).to(d)
+    if photometric_native.warp_l1_suited(d, a, reference_image, source_image, sd):
+        # One native pass for the value and both gradients (engine/photometric/cpu/warp.cpp).
+        rot, trans = relative_pose(reference, source)
+        return photometric_native.warp_l1_native(
+            d, a, reference_image, source_image, sd,
+            (reference.fx, reference.fy, reference.cx, reference.cy),
+            (source.fx, source.fy, source.cx, source.cy),
+            rot, trans, min_alpha, occlusion_tolerance,
+        )  # fmt: skip
+    if a is not None:
         valid = (a.detach() >= min_alpha) & torch.isfinite(d.detach())
         z_ref = d / torch.where(valid, a, torch.ones_like(a))
     else:
@@ -141,9 +161,8 @@ def warp_consistency_loss(
     with torch.no_grad():
         inside = (u >= 0.5) & (u <= source.width - 0.5) & (v >= 0.5) & (v <= source.height - 0.5)
         valid = valid & (z_src > 0) & inside
-        if source_depth is not None:
-            sd = source_depth.detach().reshape(1, source.height, source.width).to(z_src)
-            seen = _sample(sd, u.detach(), v.detach(), source, "nearest")[0]
+        if sd is not None:
+            seen = _sample(sd[None], u.detach(), v.detach(), source, "nearest")[0]
             empty = ~torch.isfinite(seen) | (seen <= 0)
             valid = valid & (empty | ((z_src - seen).abs() <= occlusion_tolerance * z_src))
     count = int(valid.sum())
@@ -196,6 +215,17 @@ class WarpConsistency:
         self.last_depth: list[Tensor | None] = [None] * len(cameras)
         """``partner_depth='last'``: each view's seen depth (:func:`seen_depth`) from
         its latest photometric render; None until the view is trained with the term on."""
+
+    def state_dict(self) -> dict[str, list[Tensor | None]]:
+        """Checkpoint entries: the kept depths (all None unless ``partner_depth='last'``)."""
+        return {"consistency_last_depth": [None if d is None else d.cpu() for d in self.last_depth]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore the entries of :meth:`state_dict` (absent in older checkpoints: none kept)."""
+        kept = state.get("consistency_last_depth")
+        if kept is not None and len(kept) == len(self.last_depth):
+            device = self.images[0].device if self.images else None
+            self.last_depth = [None if d is None else d.to(device) for d in kept]
 
     def _partner_depth(self, gaussians: Gaussians, partner: int) -> Tensor:
         """View-space z the partner camera sees: its depth kept from its latest photometric

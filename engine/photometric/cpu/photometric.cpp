@@ -328,7 +328,18 @@ std::vector<torch::Tensor> depth_norm_forward(torch::Tensor depth, torch::Tensor
                                               int64_t patch, double margin, bool global_mode,
                                               double std_floor, bool need_grad);
 
+// Warp-consistency L1, warp.cpp.
+std::vector<torch::Tensor> warp_l1_forward(torch::Tensor depth, c10::optional<torch::Tensor> alpha,
+                                           torch::Tensor ref_image, torch::Tensor src_image,
+                                           c10::optional<torch::Tensor> src_depth,
+                                           std::vector<double> ref_k, std::vector<double> src_k,
+                                           std::vector<double> rot, std::vector<double> trans,
+                                           double min_alpha, double tolerance, bool need_grad);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("warp_l1_forward", &warp_l1_forward,
+        "Warp-consistency L1: (loss, count, d sum / d depth, d sum / d alpha; undefined unless "
+        "asked)");
   m.def("depth_norm_forward", &depth_norm_forward,
         "Patch-normalized depth loss of a (H, W) depth: (loss, d loss / d depth or undefined)");
   m.def("forward", &forward,

@@ -12,14 +12,17 @@ rounding is part of the inputs, so the reference uses the same float32 cameras).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 import torch
+from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import CameraError
+from sparsesplat.engine.photometric.native import BACKEND_ENV
 from sparsesplat.engine.train.consistency import warp_consistency_loss, warp_coordinates
-from tests.engine.numerics import UNIT_ROUNDOFF
+from tests.engine.numerics import UNIT_ROUNDOFF, assert_float32_close, compare_float32
 
 from .plane_scene import Plane, camera
 
@@ -193,3 +196,95 @@ def test_stiff_cases_are_finite_and_zero() -> None:
         warp_consistency_loss(img[:, :-1], img_src, true, ref, src)
     with pytest.raises(CameraError):
         warp_coordinates(true[0, :-1], ref, src)
+
+
+# -- the native kernel (engine/photometric/cpu/warp.cpp) against the float64 reference --------
+
+
+def _native_case(seed: int) -> dict[str, Any]:
+    """float32 inputs on which every decision of the loss (alpha cut, in front, inside the
+    source, occlusion, the sign of each colour difference) has a wide margin, so float32 and
+    float64 take the same ones: alpha is 0.3 or in [0.6, 1]; the depth is the plane's within
+    +-1 % (the occlusion tolerance is 5 %) and 0.5x in an occluder block of the source's depth;
+    the source photo is affine in the pixel position (bilinear sampling is exact, its slope
+    continuous across cells) and the reference photo 0.02 or 0.98, at least 0.1 from it."""
+    g = torch.Generator().manual_seed(seed)
+    plane, ref, src = _pair()
+    h, w, hs, ws = ref.height, ref.width, src.height, src.width
+    noise = 1.0 + 0.02 * (torch.rand(h, w, generator=g, dtype=torch.float64) - 0.5)
+    z = (plane.depth(ref) * noise).float()
+    alpha = torch.where(
+        torch.rand(h, w, generator=g) < 0.2, 0.3, 0.6 + 0.4 * torch.rand(h, w, generator=g)
+    )
+    ys, xs = torch.meshgrid(
+        torch.arange(hs, dtype=torch.float64) / hs,
+        torch.arange(ws, dtype=torch.float64) / ws,
+        indexing="ij",
+    )
+    src_img = torch.stack([0.2 + 0.6 * xs, 0.85 - 0.6 * ys, 0.15 + 0.3 * xs + 0.4 * ys]).float()
+    ref_img = torch.where(torch.rand(3, h, w, generator=g) < 0.5, 0.02, 0.98)
+    src_depth = plane.depth(src).float()
+    src_depth[10:20, 12:26] *= 0.5
+    return {
+        "depth": (z * alpha)[None], "alpha": alpha[None], "ref_img": ref_img,
+        "src_img": src_img, "src_depth": src_depth, "ref": ref, "src": src,
+    }  # fmt: skip
+
+
+def _loss_and_grads(case: dict[str, Any], dtype: torch.dtype) -> tuple[Tensor, Tensor, Tensor]:
+    depth = case["depth"].detach().to(dtype).requires_grad_(True)
+    alpha = case["alpha"].detach().to(dtype).requires_grad_(True)
+    loss = warp_consistency_loss(
+        case["ref_img"].to(dtype), case["src_img"].to(dtype), depth, case["ref"], case["src"],
+        alpha=alpha, source_depth=case["src_depth"].to(dtype),
+    )  # fmt: skip
+    gd, ga = torch.autograd.grad(loss, (depth, alpha))
+    return loss.detach(), gd, ga
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_native_warp_meets_the_float32_rule(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The native pass (float32 CPU) against the torch implementation in float64 on the same
+    float32 inputs, with torch's own float32 run as the scale of rounding (tests/engine/numerics):
+    the loss and its gradients with respect to depth and alpha."""
+    case = _native_case(seed)
+    native = _loss_and_grads(case, torch.float32)
+    ref64 = _loss_and_grads(case, torch.float64)
+    monkeypatch.setenv(BACKEND_ENV, "torch")
+    torch32 = _loss_and_grads(case, torch.float32)
+    # Not vacuous: the occluder block leaves pixels out (gradient exactly zero there), and many
+    # pixels count.
+    d = case["depth"].clone().requires_grad_(True)
+    warp_consistency_loss(
+        case["ref_img"], case["src_img"], d, case["ref"], case["src"], alpha=case["alpha"]
+    ).backward()
+    assert d.grad is not None
+    assert int((d.grad != 0).sum()) > int((ref64[1] != 0).sum()) + 20
+    assert int((ref64[1] != 0).sum()) > 0.3 * ref64[1].numel()
+    for name, got, ref, t32 in zip(
+        ("loss", "d depth", "d alpha"), native, ref64, torch32, strict=True
+    ):
+        assert_float32_close(got, ref, t32, None, f"seed {seed}: {name}")
+    # The rule catches one wrong gradient entry (1e-4 of the largest).
+    wrong = native[1].clone()
+    k = int(ref64[1].abs().argmax())
+    wrong.view(-1)[k] += 1e-4 * float(ref64[1].abs().max())
+    assert not compare_float32(wrong, ref64[1], torch32[1], None, "perturbed").passed
+
+
+def test_native_and_torch_warps_agree_on_the_masks_and_stiff_cases(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Both paths count the same pixels (zero gradient exactly where the other has zero) and
+    give an attached, finite zero when nothing qualifies."""
+    case = _native_case(3)
+    _, gd_native, _ = _loss_and_grads(case, torch.float32)
+    monkeypatch.setenv(BACKEND_ENV, "torch")
+    _, gd_torch, _ = _loss_and_grads(case, torch.float32)
+    assert torch.equal(gd_native != 0, gd_torch != 0)
+    monkeypatch.setenv(BACKEND_ENV, "native")
+    d = torch.zeros_like(case["depth"]).requires_grad_(True)
+    loss = warp_consistency_loss(case["ref_img"], case["src_img"], d, case["ref"], case["src"])
+    assert float(loss.detach()) == 0.0
+    loss.backward()
+    assert d.grad is not None and float(d.grad.abs().sum()) == 0.0
