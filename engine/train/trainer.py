@@ -446,6 +446,7 @@ class Trainer:
             **self.guard.state_dict(),
             **({"init_note": self.init_note} if self.init_note is not None else {}),
             **(self.near_prune.state_dict() if self.near_prune is not None else {}),
+            **(self.consistency.state_dict() if self.consistency is not None else {}),
             "records": list(self.records),
         }
 
@@ -472,6 +473,8 @@ class Trainer:
         self.init_note = state.get("init_note", self.init_note)
         if self.near_prune is not None:
             self.near_prune.load_state_dict(state)
+        if self.consistency is not None:
+            self.consistency.load_state_dict(state)
         self.recorder.records = list(state["records"])
         self.clock.start(self.elapsed_s)
 

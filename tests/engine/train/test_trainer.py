@@ -82,6 +82,12 @@ RESUME_PARTS: dict[str, dict[str, Any]] = {
     "default": {},
     # Parts with random draws or state must replay after a resume too.
     "dropout": {"dropout": True, "dropout_rate": 0.3},
+    # The partners' kept depths are state: a resume that dropped them would render instead.
+    "consistency_last": {
+        "consistency_weight": 0.5,
+        "consistency_start": 0,
+        "consistency.partner_depth": "last",
+    },
 }
 
 
