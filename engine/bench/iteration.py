@@ -2,9 +2,10 @@
 
 A synthetic 3-view scene (random Gaussian blob rendered as ground truth) and a model of ~20k and
 ~50k Gaussians. Every pass runs (hard depth, soft depth, photometric with the neural field); the
-stages are: the two depth passes (render + loss + backward + Adam step), the neural field forward
-and backward, the photometric render forward, its loss, the raster+loss backward, densification
-bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
+stages are: the two depth passes (render + loss + backward + Adam step; the soft one, fused into
+the photometric pass, is its loss only), the neural field forward and backward, the photometric
+render forward, its loss, the warp-consistency term where the config has it, the raster+loss
+backward, densification bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
 
 The random box is a heavier workload than a trained model of the same size (larger footprints,
 more Gaussians blended per pixel). ``--trained SCENE CHECKPOINT`` adds a row that continues a
@@ -231,8 +232,8 @@ def main() -> None:
         r = measure_trained(scene_dir, checkpoint, args.iterations, overrides)
         rows.append({"model": f"trained {Path(scene_dir).name}"} | _rounded(r))
     cols = ["model", "gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd",
-            "photo_render", "losses", "photo_backward", "neural_bwd", "optimizer",
-            "setup"]  # fmt: skip
+            "photo_render", "losses", "consistency", "photo_backward", "neural_bwd",
+            "optimizer", "setup"]  # fmt: skip
     write_results("iteration", rows, cols)
 
 

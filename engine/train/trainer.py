@@ -563,9 +563,11 @@ class Trainer:
         out = self._raster(*inputs, view.camera, self.background, opacity_depth=fused_soft)
         timer.tick("photo_render")
         loss, photo = self._photometric_loss(out.image, view)
+        timer.tick("losses")
         if self.consistency is not None:
             extra = self.consistency.extra_loss(it, g, out, view)
             loss = loss if extra is None else loss + extra
+            timer.tick("consistency")
         if fused_soft and self.depth is not None and out.opacity_depth is not None:
             # DNGaussian's soft-depth term on this render: its gradient reaches the opacities
             # only (the rasterizer routes it), as the reference's detached pass would.
