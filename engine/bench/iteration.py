@@ -5,7 +5,8 @@ A synthetic 3-view scene (random Gaussian blob rendered as ground truth) and a m
 stages are: the two depth passes (render + loss + backward + Adam step; the soft one, fused into
 the photometric pass, is its loss only), the neural field forward and backward, the photometric
 render forward, its loss, the warp-consistency term where the config has it, the raster+loss
-backward, densification bookkeeping and the final Adam step. Densification itself is disabled so N stays fixed.
+backward, densification bookkeeping and the final Adam step. Densification itself is disabled
+so N stays fixed.
 
 The random box is a heavier workload than a trained model of the same size (larger footprints,
 more Gaussians blended per pixel). ``--trained SCENE CHECKPOINT`` adds a row that continues a
