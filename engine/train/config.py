@@ -412,7 +412,8 @@ class ConsistencyConfig:
     """``render``: a no-gradient depth render of the partner view each time (one more pass per
     partner and iteration); ``last``: the depth of the partner's own latest photometric
     render, kept when that view was trained (free, and a few iterations old: with 3 views each
-    is trained every third iteration). A partner not trained yet is rendered."""
+    is trained every third iteration; with DropGaussian, the render of the Gaussians that
+    iteration kept). A partner not trained yet is rendered."""
     partners: ConsistencyPartnersName = "nearest"
     """``nearest``: the one training view whose camera centre is nearest; ``all``: every other
     training view, the term being the mean over them (one more no-gradient depth render and
