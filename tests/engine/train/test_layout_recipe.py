@@ -56,9 +56,9 @@ def test_the_forward_facing_recipe_is_the_dense_start_and_its_optimizer() -> Non
     assert forward.densify.grad_threshold == 0.0008
     assert (forward.depth.error_tolerance, forward.optim.lr_scaling) == (0.01, 0.005)
     assert forward.photometric.scale_weight == 0.0
-    # what sessions 18-20 measured on top: the warp term, a 70k cap, the SSIM term at 0.6
+    # what sessions 18-20 measured on top: the warp term, a 70k cap, the SSIM term at 0.8
     assert (forward.consistency.weight, forward.consistency.partner_depth) == (1.0, "last")
-    assert (forward.densify.max_gaussians, forward.photometric.lambda_dssim) == (70_000, 0.6)
+    assert (forward.densify.max_gaussians, forward.photometric.lambda_dssim) == (70_000, 0.8)
     assert (base.densify.max_gaussians, base.photometric.lambda_dssim) == (300_000, 0.2)
     # nothing else differs at the same length: the schedule is compressed the same way
     assert _changed(base, forward) == set(LAYOUT_RECIPES["llff"][FORWARD]) - {"iterations"}
