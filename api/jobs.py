@@ -269,7 +269,9 @@ class ModelInfo(BaseModel):
     """Iterations it was trained for."""
     metrics: dict[str, float | None]
     """Final held-out metrics (psnr, ssim, lpips, avge), the training ``seconds`` used and,
-    for a job with a time budget, ``time_budget_s`` (budget against used)."""
+    for a job with a time budget, ``time_budget_s`` (budget against used), or for a job of
+    the preset's default length, ``time_limit_s`` (the most it may train; a job the limit
+    ended early also has a warning saying so)."""
     exports: list[str]
     """Available export formats (``ply``, ``splat``, ``checkpoint``)."""
     cameras: list[dict[str, Any]]

@@ -59,7 +59,10 @@ EPILOG = (
     + "\n".join(f"  {name:8s} {_PRESET_HELP[name]}" for name in PRESET_NAMES)
     + "\n  automatic: the paper's preset for the llff, dtu and blender formats; otherwise "
     "'object' when the images have alpha or a plain white/black backdrop at their borders, "
-    "else 'default'.\n\n"
+    "else 'default'.\n"
+    "  a preset's default length trains for at most 590 s (on a machine too slow for it the "
+    "run ends there, its schedule compressed to fit, and says so); --iterations N trains all "
+    "N, --time-budget S trains until S seconds are spent.\n\n"
     "depth priors (--prior):\n" + "\n".join(f"  {kind}" for kind in PRIOR_KINDS) + "\n\n"
     "background: one setting for targets and renders (--set background=white|black|gray|"
     "[r,g,b]); by default white for images with alpha, else the format's (black).\n"

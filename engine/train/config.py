@@ -487,6 +487,14 @@ class TrainConfig:
     """Train until this many training seconds are spent (a deadline) instead of for
     ``iterations``; the schedule of ``iterations`` nominal iterations then follows the elapsed
     fraction of the budget (``schedule.ScheduleClock``). None: a fixed iteration count."""
+    time_limit_s: float | None = None
+    """At most this many training seconds: the run ends after ``iterations`` or at the limit,
+    whichever comes first. Where the limit would come first, the schedule follows the elapsed
+    fraction of the limit from the moment that is further along than the iteration count, so
+    the LR decay and densification window still complete (``schedule.ScheduleClock``); the
+    result then says so (``time_limited``). A preset's default run length carries
+    ``presets.DEFAULT_TIME_LIMIT_S``; a length asked for, or a time budget, carries none.
+    None: no limit."""
     threads: int | None = None
     """torch CPU threads to use; None leaves the process setting alone."""
     background: tuple[float, float, float] | None = None
@@ -533,6 +541,14 @@ class TrainConfig:
         budget = self.time_budget_s
         if budget is not None and not (math.isfinite(budget) and budget > 0):
             raise ConfigError(f"time_budget_s must be a positive number of seconds, got {budget}")
+        limit = self.time_limit_s
+        if limit is not None and not (math.isfinite(limit) and limit > 0):
+            raise ConfigError(f"time_limit_s must be a positive number of seconds, got {limit}")
+        if budget is not None and limit is not None:
+            raise ConfigError(
+                "give either a time budget (train until it is spent) or a time limit (at most "
+                "that long), not both"
+            )
         for item in dataclasses.fields(self):
             section = getattr(self, item.name)
             if dataclasses.is_dataclass(section) and hasattr(section, "validate"):

@@ -199,6 +199,13 @@ PRESET_ITERATIONS: dict[str, int] = {
 whose held-out error was best on the shared scenes of its format, measured on 2 CPU cores
 (docs/experiments/)."""
 
+DEFAULT_TIME_LIMIT_S = 590.0
+"""The training seconds a preset's default run takes at most. The default lengths were chosen
+to fit 10 minutes of training on 2 CPU cores; on a slower machine the run ends at this limit
+instead, its schedule compressed to fit (``TrainConfig.time_limit_s``), rather than running
+over. 10 s short of 600 so that the last iteration and its bookkeeping land inside 10 minutes
+too. A length asked for (``iterations``) is trained in full."""
+
 
 def preset(
     name: str, iterations: int | None = None, layout: str | None = None, **overrides: Any
@@ -206,8 +213,9 @@ def preset(
     """The config of preset ``name`` with its recipe for the training cameras' ``layout``
     (:data:`LAYOUT_RECIPES`; None: not known, the trainer resolves ``auto`` fields itself):
     its reference schedule compressed to ``iterations`` (default: the layout recipe's
-    ``iterations``, else :data:`PRESET_ITERATIONS`), then ``overrides`` applied as given
-    (dotted names via ``**{"depth.soft_start": 500}``, or the old flat names).
+    ``iterations``, else :data:`PRESET_ITERATIONS`, with at most :data:`DEFAULT_TIME_LIMIT_S`
+    of training), then ``overrides`` applied as given (dotted names via
+    ``**{"depth.soft_start": 500}``, or the old flat names).
 
     Compressing always starts from the reference schedule, so any length is exact, longer
     than the default included (``TrainConfig.with_iterations`` on an already compressed
@@ -221,7 +229,13 @@ def preset(
     default_length = recipe.pop("iterations", PRESET_ITERATIONS[name])
     length = default_length if iterations is None else iterations
     reference = apply_overrides(apply_overrides(TrainConfig(), PRESETS[name]), recipe)
-    return apply_overrides(reference.with_iterations(length), overrides)
+    config = reference.with_iterations(length)
+    # The default length comes with the time it was chosen to fit; a length or a deadline
+    # asked for does not.
+    asked = {resolve(key) for key in overrides} & {"iterations", "time_budget_s"}
+    if iterations is None and not asked:
+        config = apply_overrides(config, {"time_limit_s": DEFAULT_TIME_LIMIT_S})
+    return apply_overrides(config, overrides)
 
 
 def layout_recipe(name: str, layout: str | None, overrides: dict[str, Any]) -> dict[str, Any]:

@@ -97,7 +97,12 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
         raise ConfigError("no preset named and no scene to choose one from")
     config = preset(name, iterations=iterations, layout=training_layout(scene), **overrides)
     if budget is not None:
-        config = apply_overrides(config, {"time_budget_s": float(budget)})
+        # A deadline replaces the default length's time limit; a limit the spec names too is
+        # a conflict, which validation reports.
+        changes: dict[str, Any] = {"time_budget_s": float(budget)}
+        if not any(resolve(key) == "time_limit_s" for key in overrides):
+            changes["time_limit_s"] = None
+        config = apply_overrides(config, changes)
     return RunPlan(config, reason)
 
 

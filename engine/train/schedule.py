@@ -36,50 +36,79 @@ def crossed_multiple(previous: float, position: float, interval: int) -> bool:
 class ScheduleClock:
     """Where the run is on its nominal schedule of ``total`` iterations.
 
-    Without a budget the position of iteration ``i`` is ``i`` itself, so every part compares
-    exactly as a plain iteration counter would (and a hook called with any iteration number
-    sees that number). With ``budget_s`` the run is a deadline: the position of the current
-    iteration is ``total`` x the elapsed fraction of the budget, and the run ends when the
-    budget is spent, so the LR decay, densification window, depth starts and dropout ramp land
-    at the same fractions of the budget whatever the machine's speed. Parts compare schedule
-    fields (those ``TrainConfig.with_iterations`` scales) against :meth:`position` and keep
-    raw iteration counts for cadences (``densify.interval``, ``depth.every``)."""
+    Without a budget or a limit the position of iteration ``i`` is ``i`` itself, so every part
+    compares exactly as a plain iteration counter would (and a hook called with any iteration
+    number sees that number). With ``budget_s`` the run is a deadline: the position of the
+    current iteration is ``total`` x the elapsed fraction of the budget, and the run ends when
+    the budget is spent, so the LR decay, densification window, depth starts and dropout ramp
+    land at the same fractions of the budget whatever the machine's speed. With ``limit_s``
+    the run is ``total`` iterations or ``limit_s`` seconds, whichever comes first: the
+    position is whichever of the iteration and ``total`` x the elapsed fraction of the limit
+    is further along. On a machine fast enough for the limit never to bind, that is the
+    iteration itself (the run is the same as without a limit, bit for bit); on a slower one
+    the schedule runs ahead of the iteration count from the moment time would run out first,
+    and still completes by the limit. Parts compare schedule fields (those
+    ``TrainConfig.with_iterations`` scales) against :meth:`position` and keep raw iteration
+    counts for cadences (``densify.interval``, ``depth.every``)."""
 
-    def __init__(self, total: int, budget_s: float | None = None) -> None:
-        """``total``: the nominal schedule length (``config.iterations``)."""
+    def __init__(
+        self, total: int, budget_s: float | None = None, limit_s: float | None = None
+    ) -> None:
+        """``total``: the nominal schedule length (``config.iterations``); ``budget_s``: a
+        deadline (``time_budget_s``); ``limit_s``: a limit (``time_limit_s``; unused with a
+        budget)."""
         self.total = total
         self.budget_s = budget_s
-        self._position = 0.0
-        self._previous = 0.0
+        self.limit_s = None if budget_s is not None else limit_s
+        self._position: float = 0
+        self._previous: float = 0
+        self.limited = False
+        """Whether the time limit has bound: the schedule ran ahead of the iteration count."""
 
-    def _at(self, elapsed_s: float) -> float:
-        assert self.budget_s is not None
-        return min(float(self.total), self.total * elapsed_s / self.budget_s)
+    def _seconds(self) -> float | None:
+        return self.budget_s if self.budget_s is not None else self.limit_s
 
-    def start(self, elapsed_s: float) -> None:
-        """Set the position of a run (re)started after ``elapsed_s`` training seconds."""
+    def _at(self, elapsed_s: float, iteration: int) -> float:
+        """The position of ``iteration`` begun after ``elapsed_s`` under a budget or limit."""
+        seconds = self._seconds()
+        assert seconds is not None
+        timed = min(float(self.total), self.total * elapsed_s / seconds)
         if self.budget_s is not None:
-            self._position = self._previous = self._at(elapsed_s)
+            return timed
+        if iteration >= timed:  # the iteration count is ahead: the plain schedule, exactly
+            return iteration
+        self.limited = True
+        return timed
 
-    def advance(self, elapsed_s: float) -> None:
-        """Move to the next iteration, begun after ``elapsed_s`` training seconds."""
-        if self.budget_s is not None:
+    def start(self, elapsed_s: float, iteration: int = 0) -> None:
+        """Set the position of a run (re)started after ``elapsed_s`` training seconds and
+        ``iteration`` iterations."""
+        if self._seconds() is not None:
+            self._position = self._previous = self._at(elapsed_s, iteration)
+
+    def advance(self, elapsed_s: float, iteration: int) -> None:
+        """Move to ``iteration`` (1-based), begun after ``elapsed_s`` training seconds."""
+        if self._seconds() is not None:
             self._previous = self._position
-            self._position = self._at(elapsed_s)
+            self._position = self._at(elapsed_s, iteration)
 
     def finished(self, iteration: int, elapsed_s: float) -> bool:
-        """Whether the run is over: ``total`` iterations done, or the budget spent."""
-        if self.budget_s is None:
-            return iteration >= self.total
-        return elapsed_s >= self.budget_s
+        """Whether the run is over: ``total`` iterations done, the budget spent, or the limit
+        reached."""
+        if self.budget_s is not None:
+            return elapsed_s >= self.budget_s
+        if self.limit_s is not None and elapsed_s >= self.limit_s:
+            return True
+        return iteration >= self.total
 
     def position(self, iteration: int) -> float:
-        """The schedule position of (1-based) ``iteration``, the current one under a budget."""
-        return iteration if self.budget_s is None else self._position
+        """The schedule position of (1-based) ``iteration``, the current one under a budget
+        or a limit."""
+        return iteration if self._seconds() is None else self._position
 
     def previous(self, iteration: int) -> float:
         """The schedule position of the iteration before ``iteration``."""
-        return iteration - 1 if self.budget_s is None else self._previous
+        return iteration - 1 if self._seconds() is None else self._previous
 
     def crossed(self, mark: float, iteration: int) -> bool:
         """Whether ``iteration`` passed schedule position ``mark`` (whole iterations:

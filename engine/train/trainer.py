@@ -140,7 +140,7 @@ class Trainer:
         (tests inject a fake one to drive a time budget)."""
         self.config = config.validate()
         self.time_source = time_source
-        self.clock = ScheduleClock(config.iterations, config.time_budget_s)
+        self.clock = ScheduleClock(config.iterations, config.time_budget_s, config.time_limit_s)
         """The schedule position the parts compare their schedule fields with."""
         self.scene = scene
         self.device = torch.device(device)
@@ -476,7 +476,7 @@ class Trainer:
         if self.consistency is not None:
             self.consistency.load_state_dict(state)
         self.recorder.records = list(state["records"])
-        self.clock.start(self.elapsed_s)
+        self.clock.start(self.elapsed_s, self.iteration)
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path:
         """Write the native checkpoint (default ``out_dir/checkpoint.pt``)."""
@@ -615,8 +615,9 @@ class Trainer:
         return rule
 
     def run(self) -> TrainResult:
-        """Train to ``config.iterations``, or under ``config.time_budget_s`` until the budget
-        is spent (or until the callback says stop); evaluate, save."""
+        """Train to ``config.iterations`` (or sooner, at ``config.time_limit_s``), or under
+        ``config.time_budget_s`` until the budget is spent (or until the callback says stop);
+        evaluate, save."""
         cfg = self.config
         keep_freed_memory()  # reuse the step's large buffers (see engine/malloc.py)
         prev_threads = torch.get_num_threads()
@@ -644,7 +645,7 @@ class Trainer:
         while not clock.finished(self.iteration, self.elapsed_s):
             t0 = self.time_source()
             self.iteration += 1
-            clock.advance(self.elapsed_s)
+            clock.advance(self.elapsed_s, self.iteration)
             self._step()
             dt = self.time_source() - t0
             self.elapsed_s += dt
@@ -681,6 +682,17 @@ class Trainer:
             metrics["init"] = self.init_note
         if self.config.time_budget_s is not None:  # budget against used, for the job's report
             metrics["time_budget_s"] = self.config.time_budget_s
+        limit = self.config.time_limit_s
+        if limit is not None:
+            metrics["time_limit_s"] = limit
+            metrics["time_limited"] = self.clock.limited
+            if self.clock.limited and not stopped:
+                metrics.setdefault("warnings", []).append(
+                    f"the run reached its time limit ({limit:g} s of training) after "
+                    f"{self.iteration} of {self.config.iterations} iterations; its schedule "
+                    "was compressed to end there (this machine trains slower than the one the "
+                    "preset's length was chosen on; --iterations N trains the full N)"
+                )
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
         if self.depth_agreement is not None:

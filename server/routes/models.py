@@ -75,8 +75,9 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
 
 MODEL_METRICS = ("psnr", "ssim", "lpips", "avge")
 """The held-out metrics every model reports (None where unavailable)."""
-BUDGET_METRICS = ("seconds", "time_budget_s")
-"""Training seconds used and, for a job with a time budget, the budget (when stored)."""
+BUDGET_METRICS = ("seconds", "time_budget_s", "time_limit_s")
+"""Training seconds used and, for a job with a time budget, the budget, or for a job of the
+preset's default length, its time limit (when stored)."""
 
 
 def check_render_size(service: ServiceState, request: RenderRequest) -> None:

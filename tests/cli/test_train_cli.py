@@ -14,7 +14,11 @@ import torch
 
 from sparsesplat.engine.commands import train as train_cmd
 from sparsesplat.engine.train import PRESETS
-from sparsesplat.engine.train.presets import LAYOUT_RECIPES, PRESET_ITERATIONS
+from sparsesplat.engine.train.presets import (
+    DEFAULT_TIME_LIMIT_S,
+    LAYOUT_RECIPES,
+    PRESET_ITERATIONS,
+)
 from tests.cli.conftest import SMOKE, run_cli, strict_json
 from tests.cli.scenes import shrink_images, write_object_scene
 
@@ -37,6 +41,7 @@ def test_help_lists_presets_prior_kinds_and_exit_codes() -> None:
         assert [int(n) for n in re.findall(r"(\d+) iterations", line)] == sorted(lengths), name
     assert "images have alpha" in text and "plain white/black backdrop" in text
     assert "exit codes" in text
+    assert f"default length trains for at most {DEFAULT_TIME_LIMIT_S:g} s" in text
     assert set(train_cmd.PRESET_NAMES) == set(PRESETS), "help must name exactly the presets"
 
 

@@ -30,3 +30,24 @@ def test_a_time_budget_trains_until_it_is_spent_and_reports_it(
     # Under a deadline the progress has no iteration total; the last beat shows the end.
     assert done["progress"]["total"] is None
     assert done["progress"]["iteration"] == model["iterations"]
+
+
+def test_a_default_length_job_stops_at_its_time_limit_and_says_so(
+    live: LiveService, mic_upload
+) -> None:
+    live.start_api()
+    live.wait_ready()
+    # No iterations and no budget: the preset's default length (4500 for mic) with its time
+    # limit, here lowered to 3 s so that it binds long before the length.
+    spec = {k: v for k, v in FAST_SPEC.items() if k != "iterations"}
+    spec |= {"overrides": {"time_limit_s": 3.0}}
+    job = submit(live.url, mic_upload, spec)
+    done = wait_state(live.url, job["id"], {"succeeded", "failed", "cancelled"}, timeout=300)
+    assert done["state"] == "succeeded", live.tail()
+    model = httpx.get(f"{live.url}/v1/models/{job['id']}").json()
+    metrics = model["metrics"]
+    assert metrics["time_limit_s"] == 3.0
+    assert 3.0 <= metrics["seconds"] < 5.0, metrics
+    assert 1 <= model["iterations"] < 4500
+    (warning,) = [w for w in done["warnings"] if "time limit" in w]
+    assert f"after {model['iterations']} of 4500 iterations" in warning

@@ -18,7 +18,7 @@ from sparsesplat.engine.train.overrides import (
 )
 from sparsesplat.engine.train.presets import PRESETS, preset
 
-_NEW_FIELDS = {"time_budget_s", "consistency.partner_depth"}
+_NEW_FIELDS = {"time_budget_s", "time_limit_s", "consistency.partner_depth"}
 """Fields that did not exist in the flat versions (no flat name)."""
 
 

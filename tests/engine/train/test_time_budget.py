@@ -112,7 +112,7 @@ def test_densification_stops_at_the_budgets_fraction_of_the_window() -> None:
 
 def test_without_a_budget_the_position_is_the_iteration() -> None:
     clock = ScheduleClock(40)
-    clock.advance(123.0)  # elapsed time does not matter
+    clock.advance(123.0, 7)  # elapsed time does not matter
     assert (clock.position(7), clock.previous(7)) == (7, 6)
     assert clock.crossed(7, 7) and not clock.crossed(8, 7)
     assert clock.crossed_multiple(5, 10) and not clock.crossed_multiple(5, 11)
