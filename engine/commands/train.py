@@ -170,7 +170,8 @@ class ProgressLine:
     """The default output: one line on ``stream`` redrawn in place (a TTY) with iteration /
     total, elapsed, estimated remaining and the latest held-out PSNR beside the constant-
     background baseline; on a non-TTY stream, one line per held-out record instead. Under a
-    time budget the bar and the time left follow the budget's training seconds."""
+    time budget the bar and the time left follow the budget's training seconds; under a time
+    limit, whichever of the iterations and the limit's seconds is further along."""
 
     def __init__(
         self,
@@ -178,11 +179,14 @@ class ProgressLine:
         baseline: float | None,
         stream: TextIO,
         budget_s: float | None = None,
+        limit_s: float | None = None,
     ) -> None:
         """``baseline``: the PSNR of a constant background image (None: no held-out views);
-        ``budget_s``: the run's time budget (None: it runs ``total`` iterations)."""
+        ``budget_s``: the run's time budget (None: it runs ``total`` iterations);
+        ``limit_s``: its time limit (None: none)."""
         self.total = total
         self.budget_s = budget_s
+        self.limit_s = limit_s
         self.trained_s = 0.0
         """The trainer's training seconds so far (what a budget counts)."""
         self.baseline = baseline
@@ -207,6 +211,10 @@ class ProgressLine:
             frac = min(self.trained_s / self.budget_s, 1.0)
             left = max(self.budget_s - self.trained_s, 0.0)
             count = f"{self.iteration} it"
+        elif self.limit_s is not None:  # the run ends at the limit if that comes first
+            frac = max(frac, min(self.trained_s / self.limit_s, 1.0))
+            to_limit = max(self.limit_s - self.trained_s, 0.0)
+            left = to_limit if left is None else min(left, to_limit)
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         parts = [
             f"{count} [{bar}]",
@@ -342,7 +350,9 @@ def _run(args: argparse.Namespace) -> int:
     trainer, config = run.trainer, run.plan.config
     if talk:
         baseline = trainer.background_psnr()
-        bar = ProgressLine(config.iterations, baseline, sys.stderr, config.time_budget_s)
+        bar = ProgressLine(
+            config.iterations, baseline, sys.stderr, config.time_budget_s, config.time_limit_s
+        )
         bar.follow(trainer)
     try:
         result = trainer.run()

@@ -73,3 +73,16 @@ def test_progress_line_under_a_budget_counts_training_seconds() -> None:
     text = stream.getvalue()
     assert text.startswith("40 it [" + "#" * 10 + "-" * 10 + "]"), text
     assert "left 00:30" in text and "PSNR 20.50 dB (background 12.00)" in text
+
+
+def test_progress_line_under_a_limit_follows_whichever_ends_first() -> None:
+    """A default-length run ends after its iterations or at its time limit, whichever first."""
+    import io
+
+    stream = io.StringIO()
+    line = train_cmd.ProgressLine(3000, None, stream, limit_s=590.0)
+    line.start -= 100.0  # 100 s of wall time behind the first record
+    line.record(300, 18.0, trained_s=295.0)  # a tenth of the iterations, half the limit
+    text = stream.getvalue()
+    assert text.startswith("300/3000 [" + "#" * 10 + "-" * 10 + "]"), text
+    assert "left 04:55" in text, text  # the limit's 295 s, not the iterations' ~900 s
