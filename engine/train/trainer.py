@@ -691,7 +691,8 @@ class Trainer:
                     f"the run reached its time limit ({limit:g} s of training) after "
                     f"{self.iteration} of {self.config.iterations} iterations; its schedule "
                     "was compressed to end there (this machine trains slower than the one the "
-                    "preset's length was chosen on; --iterations N trains the full N)"
+                    "preset's length was chosen on; a run that asks for a number of iterations "
+                    "trains them all)"
                 )
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
