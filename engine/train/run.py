@@ -19,7 +19,7 @@ from typing import Any
 
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
-from sparsesplat.engine.train.overrides import apply_overrides, resolve
+from sparsesplat.engine.train.overrides import resolve
 from sparsesplat.engine.train.presets import preset
 from sparsesplat.engine.train.progress import ProgressCallback
 from sparsesplat.engine.train.trainer import Trainer
@@ -95,14 +95,9 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
         name, reason = choose_preset(scene)
     else:
         raise ConfigError("no preset named and no scene to choose one from")
+    if budget is not None:  # as an override, it replaces the default length's time limit
+        overrides["time_budget_s"] = float(budget)
     config = preset(name, iterations=iterations, layout=training_layout(scene), **overrides)
-    if budget is not None:
-        # A deadline replaces the default length's time limit; a limit the spec names too is
-        # a conflict, which validation reports.
-        changes: dict[str, Any] = {"time_budget_s": float(budget)}
-        if not any(resolve(key) == "time_limit_s" for key in overrides):
-            changes["time_limit_s"] = None
-        config = apply_overrides(config, changes)
     return RunPlan(config, reason)
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
-from sparsesplat.engine.train.config import ConfigError
+from sparsesplat.engine.train.config import ConfigError, TrainConfig
 from sparsesplat.engine.train.presets import PRESET_ITERATIONS
 from sparsesplat.engine.train.run import RunSpec, plan_run
 from sparsesplat.engine.train.schedule import ScheduleClock, position_lr
@@ -30,16 +30,24 @@ class FakeTime:
         return self.now
 
 
+def clocked_config(nominal: int, **clock: float | None) -> TrainConfig:
+    """The smoke config with a ``nominal``-iteration schedule whose phases the tests of the
+    schedule clock watch (centre LR decay over all of it, soft depth from a quarter,
+    densification between a tenth and a half), plus ``clock`` (``time_budget_s`` or
+    ``time_limit_s``)."""
+    return small(
+        iterations=nominal, dropout=True,
+        lr_means_start=0, lr_means_steps=nominal, soft_depth_start=nominal // 4,
+        densify_from=nominal // 10, densify_until=nominal // 2, densify_interval=5, **clock,
+    )  # fmt: skip
+
+
 def _budget_run(budget_s: float, nominal: int) -> tuple[Trainer, dict[int, dict[str, float]]]:
     """Train the smoke config under ``budget_s`` with ``nominal`` schedule iterations, each
     iteration taking STEP_S fake seconds; returns the trainer and, per iteration, its
     schedule position, centre LR, depth passes run and dropout rate."""
     scene, priors = make_scene(seed=0)
-    config = small(
-        iterations=nominal, time_budget_s=budget_s, dropout=True,
-        lr_means_start=0, lr_means_steps=nominal, soft_depth_start=nominal // 4,
-        densify_from=nominal // 10, densify_until=nominal // 2, densify_interval=5,
-    )  # fmt: skip
+    config = clocked_config(nominal, time_budget_s=budget_s)
     fake = FakeTime()
     t = Trainer(scene, config, priors, time_source=fake)
     seen: dict[int, dict[str, float]] = {}

@@ -9,28 +9,23 @@ import pytest
 import torch
 
 from sparsesplat.engine.synthetic import make_scene
-from sparsesplat.engine.train import Trainer
+from sparsesplat.engine.train import Trainer, TrainResult
 from sparsesplat.engine.train.config import ConfigError
 from sparsesplat.engine.train.presets import DEFAULT_TIME_LIMIT_S, PRESET_ITERATIONS
 from sparsesplat.engine.train.run import RunSpec, plan_run
 from sparsesplat.engine.train.schedule import ScheduleClock, position_lr
-from tests.engine.train.test_time_budget import STEP_S, FakeTime
-from tests.engine.train.test_trainer_parts import small
+from tests.engine.train.test_time_budget import STEP_S, FakeTime, clocked_config
 
 NOMINAL = 40
 """The schedule length of the runs below (densification while 4 < position < 20)."""
 
 
-def _run(limit_s: float | None) -> tuple[Trainer, dict[int, dict[str, float]]]:
+def _run(limit_s: float | None) -> tuple[Trainer, TrainResult, dict[int, dict[str, float]]]:
     """Train the smoke config for NOMINAL iterations under ``limit_s``, each iteration taking
-    STEP_S fake seconds; returns the trainer after the run and, per iteration, its schedule
-    position, centre LR and the Gaussian count densification left."""
+    STEP_S fake seconds; returns the trainer and its result after the run and, per iteration,
+    its schedule position, centre LR and the Gaussian count densification left."""
     scene, priors = make_scene(seed=0)
-    config = small(
-        iterations=NOMINAL, time_limit_s=limit_s, dropout=True,
-        lr_means_start=0, lr_means_steps=NOMINAL, soft_depth_start=NOMINAL // 4,
-        densify_from=NOMINAL // 10, densify_until=NOMINAL // 2, densify_interval=5,
-    )  # fmt: skip
+    config = clocked_config(NOMINAL, time_limit_s=limit_s)
     fake = FakeTime()
     t = Trainer(scene, config, priors, time_source=fake)
     seen: dict[int, dict[str, float]] = {}
@@ -47,29 +42,28 @@ def _run(limit_s: float | None) -> tuple[Trainer, dict[int, dict[str, float]]]:
         fake.now += STEP_S
 
     t._step = timed_step  # type: ignore[method-assign]
-    t.result = t.run()  # type: ignore[attr-defined]
-    return t, seen
+    return t, t.run(), seen
 
 
 def test_a_limit_that_does_not_bind_leaves_the_run_bit_for_bit() -> None:
     # 40 iterations take 20 fake seconds: a 21 s limit never binds
-    limited, seen = _run(21.0)
-    plain, plain_seen = _run(None)
+    limited, result, seen = _run(21.0)
+    plain, plain_result, plain_seen = _run(None)
     assert limited.iteration == plain.iteration == NOMINAL
     assert all(type(row["position"]) is int and row["position"] == k for k, row in seen.items())
     assert seen == plain_seen
     for name, value in plain.gaussians.params.items():
         assert torch.equal(limited.gaussians.params[name], value), name
-    metrics = limited.result.metrics  # type: ignore[attr-defined]
+    metrics = result.metrics
     assert metrics["time_limit_s"] == 21.0 and metrics["time_limited"] is False
     assert not metrics.get("warnings")
-    assert "time_limit_s" not in plain.result.metrics  # type: ignore[attr-defined]
+    assert "time_limit_s" not in plain_result.metrics
 
 
 def test_a_limit_that_binds_ends_the_run_on_time_with_its_whole_schedule() -> None:
     limit = 10.0  # 20 iterations of 0.5 s, half the nominal 40
-    t, seen = _run(limit)
-    metrics = t.result.metrics  # type: ignore[attr-defined]
+    t, result, seen = _run(limit)
+    metrics = result.metrics
     assert t.iteration == len(seen) == round(limit / STEP_S) == 20
     assert metrics["seconds"] == limit and metrics["time_limited"] is True
     assert any("time limit (10 s of training) after 20 of 40" in w for w in metrics["warnings"])
