@@ -23,11 +23,63 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+CPU_ID_FIELDS = {
+    "vendor_id": "vendor",
+    "cpu family": "family",
+    "model": "model",
+    "stepping": "stepping",
+}
+"""/proc/cpuinfo keys that identify a CPU generation, and their names in ``machine_info``."""
+
+ISA_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile")
+"""CPU flags that decide which kernel variants and matrix paths a bench exercises."""
+
+
+def cpu_identity(cpuinfo: str) -> dict[str, Any]:
+    """Vendor, family, model, stepping and the :data:`ISA_FLAGS` present, from the text of
+    /proc/cpuinfo (its first processor). A hypervisor may report only "AMD EPYC" as the model
+    name, which spans five generations of very different speed; these fields tell them apart."""
+    ident: dict[str, Any] = {}
+    flags: list[str] = []
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            break  # the first processor's block ends here
+        key, _, value = line.partition(":")
+        key, value = key.strip(), value.strip()
+        if key in CPU_ID_FIELDS:
+            ident[CPU_ID_FIELDS[key]] = int(value) if value.isdigit() else value
+        elif key == "flags":
+            present = set(value.split())
+            flags = [f for f in ISA_FLAGS if f in present]
+    if ident:
+        ident["isa"] = flags
+    return ident
+
+
+def _l3_cache() -> str | None:
+    """The L3 cache size Linux reports for CPU 0 (e.g. '32768K'), or None."""
+    base = Path("/sys/devices/system/cpu/cpu0/cache")
+    try:
+        for index in sorted(base.glob("index*")):
+            if (index / "level").read_text().strip() == "3":
+                return (index / "size").read_text().strip()
+    except OSError:
+        pass
+    return None
+
+
 def machine_info() -> dict[str, Any]:
-    """CPU model, logical cores, torch threads and versions of the process running the bench,
-    and the instruction-set variant of each native kernel it has loaded (``kernels``)."""
+    """CPU model and identity (family, model, ISA flags, L3), logical cores, torch threads and
+    versions of the process running the bench, and the instruction-set variant of each native
+    kernel it has loaded (``kernels``)."""
+    try:
+        ident = cpu_identity(Path("/proc/cpuinfo").read_text())
+    except OSError:
+        ident = {}
     info: dict[str, Any] = {
         "cpu": _cpu_model(),
+        "cpu_id": ident,
+        "l3_cache": _l3_cache(),
         "cores": os.cpu_count(),
         "python": platform.python_version(),
         "platform": platform.platform(),
@@ -75,9 +127,15 @@ def write_results(name: str, rows: list[dict[str, Any]], columns: list[str]) -> 
     """Print ``rows`` as a table and write bench-results/<name>.json; returns the file path."""
     info = machine_info()
     kernels = ", ".join(f"{k} {v}" for k, v in info["kernels"].items())
+    ident = info["cpu_id"]
+    generation = (
+        f"family {ident['family']} model {ident['model']}, "
+        if "family" in ident and "model" in ident
+        else ""
+    )
     print(
-        f"# {name} on {info['cpu']} ({info['cores']} cores, torch {info.get('torch')}"
-        + (f"; kernels: {kernels})" if kernels else ")")
+        f"# {name} on {info['cpu']} ({generation}{info['cores']} cores, "
+        f"torch {info.get('torch')}" + (f"; kernels: {kernels})" if kernels else ")")
     )
     print(format_table(rows, columns))
     out_dir = results_dir()

@@ -8,6 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from sparsesplat.engine.bench import common
+from sparsesplat.engine.bench.common import RESULTS_DIR_ENV, cpu_identity, write_results
+
 _SCRIPT = """
 import json
 import torch
@@ -52,3 +57,58 @@ def test_machine_info_names_the_kernel_variants_the_process_loaded() -> None:
     assert default["after"]["CPU rasterizer"] in ("avx2", "avx512")
     # A render loads the projection and the rasterizer, not the colour field or the losses.
     assert set(default["after"]) == set(forced["after"]) == {"CPU projection", "CPU rasterizer"}
+
+
+_CPUINFO = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 17
+model name\t: AMD EPYC
+stepping\t: 1
+flags\t\t: fpu sse avx avx2 avx512f avx512bw avx512_bf16
+
+processor\t: 1
+vendor_id\t: GenuineIntel
+cpu family\t: 6
+model\t\t: 143
+flags\t\t: fpu avx2 amx_tile
+"""
+
+
+def test_cpu_identity_tells_generations_apart_from_the_first_processor() -> None:
+    """A hypervisor's bare "AMD EPYC" model name gets family, model, stepping and the ISA flags
+    the kernels choose by, read from the first processor's block only."""
+    ident = cpu_identity(_CPUINFO)
+    assert ident == {
+        "vendor": "AuthenticAMD",
+        "family": 25,
+        "model": 17,
+        "stepping": 1,
+        "isa": ["avx2", "avx512f", "avx512_bf16"],
+    }
+    assert cpu_identity("") == {}
+
+
+def test_bench_header_names_the_cpu_generation(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The table's header line carries family and model when the machine reports them, and
+    the results file keeps the whole identity."""
+    monkeypatch.setenv(RESULTS_DIR_ENV, str(tmp_path))
+    monkeypatch.setattr(
+        common,
+        "machine_info",
+        lambda: {
+            "cpu": "AMD EPYC",
+            "cpu_id": cpu_identity(_CPUINFO),
+            "l3_cache": "32768K",
+            "cores": 2,
+            "torch": "2.13.0",
+            "kernels": {},
+        },
+    )
+    path = write_results("probe", [{"a": 1.0}], ["a"])
+    header = capsys.readouterr().out.splitlines()[0]
+    assert header == "# probe on AMD EPYC (family 25 model 17, 2 cores, torch 2.13.0)"
+    saved = json.loads(path.read_text())["machine"]
+    assert saved["cpu_id"]["model"] == 17 and saved["l3_cache"] == "32768K"
