@@ -145,6 +145,10 @@ class Record(BaseModel):
     """Gaussians in the model at this point."""
     final: bool = False
     """True for the record taken at the end (all held-out views)."""
+    views: int = 0
+    """Held-out views the record scored. Interim records score the same few each time
+    (``record.eval_max_views``); where that is fewer than all, the end brings a record on
+    those few (the curve's last point) and then the final one on all of them."""
 
 
 class CameraEstimation(BaseModel):

@@ -3,7 +3,8 @@
 A record is one evaluation of a run at some wall-clock time: ``iteration, elapsed_s,
 train_loss, psnr, ssim, lpips, avge, n_gaussians`` (metrics are None when the scene has no
 held-out views or the metric was not computed). Extra keys are kept and written after the
-standard columns.
+standard columns; the plot reads two of them, ``final`` and ``views`` (held-out views scored),
+to draw an all-view final record apart from a curve over fewer views.
 """
 
 from __future__ import annotations
@@ -63,6 +64,26 @@ def _series(records: Sequence[dict[str, Any]], key: str) -> tuple[list[float], l
     return xs, ys
 
 
+def split_curve(
+    records: Sequence[dict[str, Any]],
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], int, int]:
+    """(curve, ends, views on the curve, views at the end): the records a plot joins by a line,
+    and the final records it draws apart.
+
+    Interim records score a fixed few held-out views (``views``) and the final one all of them;
+    the trainer closes the curve with the few's figure at the end. Where the final record
+    scored more views than the curve, it is kept off the line, so the step between the two sets
+    of views does not read as progress made in the last seconds. Otherwise every record is on
+    the curve and ``ends`` is empty."""
+    curve = [r for r in records if not r.get("final")]
+    finals = [r for r in records if r.get("final")]
+    subset = max((int(r.get("views") or 0) for r in curve), default=0)
+    everything = max((int(r.get("views") or 0) for r in finals), default=0)
+    if finals and 0 < subset < everything:
+        return curve, finals, subset, everything
+    return list(records), [], subset, max(subset, everything)
+
+
 def plot_report(records: Sequence[dict[str, Any]], path: Path, title: str | None = None) -> Path:
     """Plot held-out PSNR and LPIPS (and the training loss) against seconds into a PNG.
 
@@ -87,9 +108,24 @@ def plot_report(records: Sequence[dict[str, Any]], path: Path, title: str | None
     axes = fig.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)[:, 0]
     if not panels:
         axes[0].text(0.5, 0.5, "no records", ha="center", va="center")
+    curve, ends, subset, everything = split_curve(records)
     for ax, (key, label) in zip(axes, panels, strict=False):
-        xs, ys = _series(records, key)
-        ax.plot(xs, ys, marker="o", markersize=3)
+        held_out = bool(ends) and key != "train_loss"  # the loss is the same on both
+        xs, ys = _series(curve if held_out else records, key)
+        line_label = f"{subset} of {everything} held-out views" if held_out else None
+        ax.plot(xs, ys, marker="o", markersize=3, label=line_label)
+        if held_out:
+            fx, fy = _series(ends, key)
+            ax.plot(
+                fx,
+                fy,
+                linestyle="none",
+                marker="*",
+                markersize=10,
+                color="tab:red",
+                label=f"end, all {everything} views",
+            )
+            ax.legend(loc="best", fontsize="small")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("training seconds (evaluation and checkpoints excluded)")

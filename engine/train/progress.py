@@ -43,6 +43,9 @@ class ProgressRecord:
     """Seconds this evaluation took (not counted in elapsed_s)."""
     final: bool = False
     """True for the record taken at the end of training (all held-out views)."""
+    views: int = 0
+    """Held-out views this record scored: at most ``record.eval_max_views`` for the interim
+    records (the same ones each time), all of them for the final record."""
     kind: str = field(default="record", init=False)
     """Event discriminator: always 'record'."""
 

@@ -163,15 +163,20 @@ class Recorder:
         self._loss_sum += value
         self._loss_count += 1
 
-    def evaluate(
-        self, gaussians: Gaussians, color: ColorModel, max_views: int | None = None
-    ) -> dict[str, float | None]:
-        """Mean held-out metrics (all None when the scene has no held-out views)."""
-        views = self.scene.test
+    def _views(self, max_views: int | None) -> list[Any]:
+        """The held-out views an evaluation scores: all, or at most ``max_views`` of them."""
+        views = list(self.scene.test)
         if max_views is not None and len(views) > max_views:
             # Evenly spaced, so an interim curve samples the whole held-out trajectory.
             picks = torch.linspace(0, len(views) - 1, max(1, max_views)).round().long()
             views = [views[int(i)] for i in picks.unique()]
+        return views
+
+    def evaluate(
+        self, gaussians: Gaussians, color: ColorModel, max_views: int | None = None
+    ) -> dict[str, float | None]:
+        """Mean held-out metrics (all None when the scene has no held-out views)."""
+        views = self._views(max_views)
         if not views:
             return {"psnr": None, "ssim": None, "lpips": None, "avge": None}
         if self._evaluator is None:
@@ -245,29 +250,47 @@ class Recorder:
         gaussians: Gaussians,
         color: ColorModel,
         final: bool = False,
-    ) -> ProgressRecord:
-        """Evaluate and append one record (interim: on at most ``eval_max_views`` views)."""
+    ) -> list[ProgressRecord]:
+        """Evaluate and append the records of one evaluation: an interim one on at most
+        ``eval_max_views`` views, or at the end the final one on every held-out view.
+
+        Where the interim records score a subset, the end appends two: first the interim
+        subset's mean of the same evaluation (no extra render), then the final record. So the
+        curve keeps one set of views to its end, and the step to the all-view figure is not
+        read as progress made in the last seconds."""
         t0 = time.perf_counter()
+        interim = self._views(self.settings.eval_max_views)
         m = self.evaluate(gaussians, color, None if final else self.settings.eval_max_views)
-        rec = ProgressRecord(
-            iteration=iteration,
-            elapsed_s=elapsed_s,
-            train_loss=self._loss_sum / self._loss_count if self._loss_count else None,
-            psnr=m["psnr"],
-            ssim=m["ssim"],
-            lpips=m["lpips"],
-            avge=m["avge"],
-            n_gaussians=len(gaussians),
-            eval_s=time.perf_counter() - t0,
-            final=final,
-        )
+        eval_s = time.perf_counter() - t0
+        loss = self._loss_sum / self._loss_count if self._loss_count else None
         self._loss_sum, self._loss_count = 0.0, 0
-        self.records.append(rec.to_dict())
+
+        def make(scores: dict[str, float | None], views: int, last: bool) -> ProgressRecord:
+            return ProgressRecord(
+                iteration=iteration,
+                elapsed_s=elapsed_s,
+                train_loss=loss,
+                psnr=scores["psnr"],
+                ssim=scores["ssim"],
+                lpips=scores["lpips"],
+                avge=scores["avge"],
+                n_gaussians=len(gaussians),
+                eval_s=eval_s if last or not final else 0.0,
+                final=last,
+                views=views,
+            )
+
+        out = [make(m, len(interim if not final else self.scene.test), final)]
+        if final and 0 < len(interim) < len(self.scene.test):
+            assert self._evaluator is not None  # the final evaluation made it
+            subset = self._evaluator.mean([self.view_scores[v.name] for v in interim])
+            out.insert(0, make(subset, len(interim), False))
+        self.records += [r.to_dict() for r in out]
         if self.out_dir is not None and not final:
             # Keep the on-disk series current so a long run can be followed (and a killed one
             # still leaves its curve); the PNG is drawn once, at the end.
             self.write_series(plot=False)
-        return rec
+        return out
 
     def final_metrics(
         self,

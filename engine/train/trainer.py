@@ -413,10 +413,13 @@ class Trainer:
         """Evaluate, append and emit one record; returns True if the callback asked to stop."""
         if self._emit(StateChange("evaluating", self.iteration)):
             return True
-        rec = self.recorder.record(
+        records = self.recorder.record(
             self.iteration, self.elapsed_s, self.gaussians, self.color, final
         )
-        return self._emit(rec)
+        stop = False
+        for rec in records:
+            stop = self._emit(rec) or stop
+        return stop
 
     # -- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

@@ -1,5 +1,6 @@
 // The error-against-run-time chart: held-out PSNR (dB, left axis), LPIPS and AVGE (right
-// axis) against training seconds, one point per record, filling in as records arrive.
+// axis) against training seconds, one point per record, filling in as records arrive (an
+// all-view final record after a curve over fewer views is left off the line, see add).
 
 import uPlot from "uplot";
 
@@ -38,10 +39,18 @@ export function errorChart(container, { width = 640, height = 300 } = {}) {
       records.splice(i, records.length - i);
     }
     records.push(record);
-    data[0] = records.map((r) => r.elapsed_s);
-    data[1] = records.map((r) => r.psnr ?? null);
-    data[2] = records.map((r) => r.lpips ?? null);
-    data[3] = records.map((r) => r.avge ?? null);
+    // Interim records score a fixed few held-out views and the final one all of them; the
+    // trainer closes the curve with the few's figure at the same iteration just before it. The
+    // final figure is the "Latest record" beside the chart, not a step on the line, which
+    // would read as progress made in the last seconds.
+    const line = records.filter((r, i) => {
+      const prev = records[i - 1];
+      return !(r.final && prev && !prev.final && prev.iteration === r.iteration && (prev.views ?? 0) < (r.views ?? 0));
+    });
+    data[0] = line.map((r) => r.elapsed_s);
+    data[1] = line.map((r) => r.psnr ?? null);
+    data[2] = line.map((r) => r.lpips ?? null);
+    data[3] = line.map((r) => r.avge ?? null);
     plot.setData(data);
     container.dataset.points = String(records.length);
   }

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from PIL import Image
 
-from sparsesplat.engine.report import COLUMNS, format_table, write_report
+from sparsesplat.engine.report import COLUMNS, format_table, split_curve, write_report
 
 
 def _records(n: int, seed: int) -> list[dict]:
@@ -87,3 +87,24 @@ def test_table_is_aligned(seed: int) -> None:
     assert lines[2].split()[5] == "-"  # lpips None in the first record
     narrow = format_table(records, ["iteration", "psnr"]).splitlines()
     assert narrow[0].split() == ["iteration", "psnr"]
+
+
+def test_an_all_view_final_record_is_drawn_apart_from_a_curve_over_fewer_views(
+    tmp_path: Path,
+) -> None:
+    """Interim records on 4 of 8 views, closed by the 4's figure at the end, then the final
+    record on all 8: the final one is off the line. Where the curve already scored every view
+    (or the records predate ``views``), every record stays on it."""
+    curve = [
+        {"iteration": 10 * i, "elapsed_s": float(i), "psnr": 15.0 + i, "views": 4, "final": False}
+        for i in range(4)
+    ]
+    final = {"iteration": 30, "elapsed_s": 3.0, "psnr": 20.0, "views": 8, "final": True}
+    line, ends, few, every = split_curve([*curve, final])
+    assert line == curve and ends == [final] and (few, every) == (4, 8)
+    same = [*curve, {**final, "views": 4}]
+    assert split_curve(same) == (same, [], 4, 4)
+    old = [{k: v for k, v in r.items() if k != "views"} for r in [*curve, final]]
+    assert split_curve(old)[:2] == (old, [])
+    paths = write_report([*curve, final], tmp_path)  # draws with the legend
+    assert Image.open(paths["png"]).size[0] > 0

@@ -263,6 +263,42 @@ def test_interim_evaluation_samples_evenly_spaced_views(seed: int) -> None:
         small(eval_max_views=0)
 
 
+def test_the_curve_ends_on_its_own_views_before_the_all_view_record(
+    tmp_path: Path, seed: int
+) -> None:
+    """With interim records on 3 of 5 held-out views, the end brings two records at the same
+    iteration: the same 3 views' mean of the final evaluation (the curve's last point), then
+    the final record on all 5. A scene with no more views than the interim count ends with
+    the final record alone."""
+    scene, priors = make_scene(seed=seed, n_test=5)
+    events: list[ProgressRecord] = []
+    result = Trainer(
+        scene, small(eval_max_views=3), priors, tmp_path, on_progress=events.append
+    ).run()
+    records = result.records
+    *interim, closing, final = records
+    assert [r["views"] for r in interim] == [3] * len(interim) and interim
+    assert not closing["final"] and closing["views"] == 3
+    assert final["final"] and final["views"] == 5
+    assert closing["iteration"] == final["iteration"] == 40
+    assert closing["elapsed_s"] == final["elapsed_s"]
+    views = result.metrics["views"]
+    picked = [views[scene.test[i].name]["psnr"] for i in (0, 2, 4)]
+    assert closing["psnr"] == pytest.approx(sum(picked) / 3, rel=1e-12)
+    assert final["psnr"] == result.metrics["psnr"] != closing["psnr"]
+    # Both reach the live stream, and the series files, in that order.
+    streamed = [e.to_dict() for e in events if isinstance(e, ProgressRecord)]
+    assert streamed[-2:] == [closing, final]
+    on_disk = json.loads((tmp_path / "metrics_series.json").read_text())
+    assert [r["final"] for r in on_disk["records"][-2:]] == [False, True]
+
+    few_scene, few_priors = make_scene(seed=seed, n_test=3)
+    few = Trainer(few_scene, small(eval_max_views=3), few_priors).run()
+    assert few.records[-1]["final"] and few.records[-1]["views"] == 3
+    assert not any(r["final"] for r in few.records[:-1])
+    assert few.records[-2]["iteration"] < few.records[-1]["iteration"]
+
+
 def test_metrics_name_each_held_out_view_and_a_checkpoint_rescores_them(
     tmp_path: Path, seed: int
 ) -> None:
