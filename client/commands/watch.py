@@ -24,6 +24,10 @@ def row(event: Event) -> list[str]:
     """Table cells of one event."""
     d = event.data
     state = str(d.get("state") or d.get("phase") or "")
+    if event.type == "record" and d.get("views"):
+        # Interim records score a few held-out views, the final one all: say which, so two
+        # records at the last iteration with different PSNRs read as what they are.
+        state = f"all {d['views']} views" if d.get("final") else f"{d['views']} views"
     if event.type == "warning":  # the message is the point of the event: give it the row
         return [str(event.seq), event.time.strftime("%H:%M:%S"), event.type, str(d.get("message"))]
     iteration = d.get("iteration")
