@@ -196,6 +196,9 @@ class ProgressLine:
         self.start_iteration = 0
         self.iteration = 0
         self.psnr: float | None = None
+        self.views = ""
+        """Which held-out views the shown PSNR scored ('' when every record scores all)."""
+        self._subset = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._width = 0
@@ -223,7 +226,8 @@ class ProgressLine:
         ]
         if self.psnr is not None:
             base = f" (background {self.baseline:.2f})" if self.baseline is not None else ""
-            parts.append(f"PSNR {self.psnr:.2f} dB{base}")
+            on = f" on {self.views}" if self.views else ""
+            parts.append(f"PSNR {self.psnr:.2f} dB{on}{base}")
         return "  ".join(parts)
 
     def draw(self, final: bool = False) -> None:
@@ -236,12 +240,29 @@ class ProgressLine:
         self.stream.write("\r" + line + " " * pad + ("\n" if final else ""))
         self.stream.flush()
 
-    def record(self, iteration: int, psnr: float | None, trained_s: float = 0.0) -> None:
-        """A held-out record arrived (``trained_s``: its training seconds)."""
+    def record(
+        self,
+        iteration: int,
+        psnr: float | None,
+        trained_s: float = 0.0,
+        views: tuple[int, int] = (0, 0),
+        final: bool = False,
+    ) -> None:
+        """A held-out record arrived (``trained_s``: its training seconds; ``views``: the
+        held-out views it scored, of how many). Records on some of the views say so beside the
+        PSNR ('4 of 5 views'), and the final one after them 'all 5 views': the two share the
+        last iteration and differ in PSNR."""
         self.iteration = iteration
         self.trained_s = max(self.trained_s, trained_s)
+        scored, held_out = views
+        if 0 < scored < held_out:
+            label = f"{scored} of {held_out} views"
+            self._subset = True
+        else:
+            label = f"all {held_out} views" if final and self._subset else ""
         if psnr is not None:
             self.psnr = psnr
+            self.views = label
         if self.tty:
             self.draw()
         else:
@@ -334,7 +355,13 @@ def _run(args: argparse.Namespace) -> int:
         if isinstance(event, ProgressRecord):
             emit(event.to_dict())
             if bar is not None:
-                bar.record(event.iteration, event.psnr, event.elapsed_s)
+                bar.record(
+                    event.iteration,
+                    event.psnr,
+                    event.elapsed_s,
+                    (event.views, len(scene.test)),
+                    event.final,
+                )
         elif isinstance(event, StateChange):
             emit(event.to_dict())
 

@@ -86,3 +86,24 @@ def test_progress_line_under_a_limit_follows_whichever_ends_first() -> None:
     text = stream.getvalue()
     assert text.startswith("300/3000 [" + "#" * 10 + "-" * 10 + "]"), text
     assert "left 04:55" in text, text  # the limit's 295 s, not the iterations' ~900 s
+
+
+def test_progress_line_says_which_held_out_views_a_psnr_scored() -> None:
+    """Interim records on 4 of 5 views say so; the final record after them says all 5 (the
+    two share the last iteration and differ in PSNR). A scene whose records all score every
+    view shows no label."""
+    import io
+
+    stream = io.StringIO()
+    line = train_cmd.ProgressLine(3000, None, stream)
+    line.record(3000, 18.88, trained_s=420.0, views=(4, 5))
+    line.record(3000, 20.13, trained_s=420.0, views=(5, 5), final=True)
+    closing, final = stream.getvalue().splitlines()
+    assert closing.endswith("PSNR 18.88 dB on 4 of 5 views"), closing
+    assert final.endswith("PSNR 20.13 dB on all 5 views"), final
+
+    stream = io.StringIO()
+    line = train_cmd.ProgressLine(3000, None, stream)
+    line.record(1000, 17.5, trained_s=100.0, views=(3, 3))
+    line.record(3000, 19.0, trained_s=300.0, views=(3, 3), final=True)
+    assert all(row.endswith(" dB") for row in stream.getvalue().splitlines())
