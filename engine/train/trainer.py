@@ -676,6 +676,28 @@ class Trainer:
         self._record(final=True)
         return self._finish(stopped=False)
 
+    def _limit_warning(self, limit: float) -> str:
+        """What the time limit did to a run it bound (``clock.limited``)."""
+        total = self.config.iterations
+        way_out = "a run that asks for a number of iterations trains them all"
+        if self.iteration < total:
+            return (
+                f"the run reached its time limit ({limit:g} s of training) after "
+                f"{self.iteration} of {total} iterations; its schedule was compressed to end "
+                f"there (this machine trains slower than the one the preset's length was "
+                f"chosen on; {way_out})"
+            )
+        # Training fell behind the limit's pace for a while (a slow stretch: another process
+        # on the machine, say), so the schedule ran ahead of the iteration count there, and
+        # then caught up: every iteration ran, but not on the plain schedule.
+        return (
+            f"training ran slower than its time limit's pace ({total} iterations in "
+            f"{limit:g} s) for a while, so the schedule ran ahead of the iteration count "
+            f"there; all {total} iterations finished, in {self.elapsed_s:.0f} s, but the "
+            f"result is not the plain schedule's (other work on the machine slows training "
+            f"too; {way_out})"
+        )
+
     def _finish(self, stopped: bool) -> TrainResult:
         artifacts: dict[str, Path] = {}
         metrics = self.recorder.final_metrics(
@@ -690,13 +712,7 @@ class Trainer:
             metrics["time_limit_s"] = limit
             metrics["time_limited"] = self.clock.limited
             if self.clock.limited and not stopped:
-                metrics.setdefault("warnings", []).append(
-                    f"the run reached its time limit ({limit:g} s of training) after "
-                    f"{self.iteration} of {self.config.iterations} iterations; its schedule "
-                    "was compressed to end there (this machine trains slower than the one the "
-                    "preset's length was chosen on; a run that asks for a number of iterations "
-                    "trains them all)"
-                )
+                metrics.setdefault("warnings", []).append(self._limit_warning(limit))
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
         if self.depth_agreement is not None:

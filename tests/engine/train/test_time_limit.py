@@ -20,10 +20,13 @@ NOMINAL = 40
 """The schedule length of the runs below (densification while 4 < position < 20)."""
 
 
-def _run(limit_s: float | None) -> tuple[Trainer, TrainResult, dict[int, dict[str, float]]]:
+def _run(
+    limit_s: float | None, step_s: dict[int, float] | None = None
+) -> tuple[Trainer, TrainResult, dict[int, dict[str, float]]]:
     """Train the smoke config for NOMINAL iterations under ``limit_s``, each iteration taking
-    STEP_S fake seconds; returns the trainer and its result after the run and, per iteration,
-    its schedule position, centre LR and the Gaussian count densification left."""
+    STEP_S fake seconds (or ``step_s[k]`` for iteration k); returns the trainer and its result
+    after the run and, per iteration, its schedule position, centre LR and the Gaussian count
+    densification left."""
     scene, priors = make_scene(seed=0)
     config = clocked_config(NOMINAL, time_limit_s=limit_s)
     fake = FakeTime()
@@ -39,7 +42,7 @@ def _run(limit_s: float | None) -> tuple[Trainer, TrainResult, dict[int, dict[st
             "lr": means["lr"],
             "n": len(t.gaussians),
         }
-        fake.now += STEP_S
+        fake.now += (step_s or {}).get(t.iteration, STEP_S)
 
     t._step = timed_step  # type: ignore[method-assign]
     return t, t.run(), seen
@@ -58,6 +61,24 @@ def test_a_limit_that_does_not_bind_leaves_the_run_bit_for_bit() -> None:
     assert metrics["time_limit_s"] == 21.0 and metrics["time_limited"] is False
     assert not metrics.get("warnings")
     assert "time_limit_s" not in plain_result.metrics
+
+
+def test_a_slow_stretch_that_the_run_makes_up_is_reported_as_such() -> None:
+    """Iterations 2-4 take 2.2 s each (a slow stretch), the rest 0.5 s: under a 30 s limit the
+    schedule runs ahead of the iteration count from iteration 3 until the count catches up,
+    and all 40 iterations finish in 25.1 s (37 x 0.5 + 3 x 2.2). The result says the limit
+    bound the schedule, and its warning says that every iteration ran, not that the run ended
+    at the limit."""
+    t, result, seen = _run(30.0, step_s={2: 2.2, 3: 2.2, 4: 2.2})
+    metrics = result.metrics
+    assert t.iteration == NOMINAL and metrics["seconds"] == pytest.approx(25.1)
+    assert metrics["time_limited"] is True
+    # iteration 3 begins after 0.5 + 2.2 s: 40 x 2.7 / 30 = 3.6, ahead of 3
+    assert seen[3]["position"] == pytest.approx(NOMINAL * 2.7 / 30.0, rel=1e-12)
+    assert seen[NOMINAL]["position"] == NOMINAL  # the count caught up
+    (warning,) = metrics["warnings"]
+    assert "all 40 iterations finished, in 25 s" in warning, warning
+    assert "reached its time limit" not in warning
 
 
 def test_a_limit_that_binds_ends_the_run_on_time_with_its_whole_schedule() -> None:
