@@ -176,7 +176,13 @@ class Recorder:
         self, gaussians: Gaussians, color: ColorModel, max_views: int | None = None
     ) -> dict[str, float | None]:
         """Mean held-out metrics (all None when the scene has no held-out views)."""
-        views = self._views(max_views)
+        return self._evaluate(gaussians, color, self._views(max_views))
+
+    def _evaluate(
+        self, gaussians: Gaussians, color: ColorModel, views: list[Any]
+    ) -> dict[str, float | None]:
+        """Mean metrics over ``views`` (all None for none); each view's scores are kept in
+        :attr:`view_scores`."""
         if not views:
             return {"psnr": None, "ssim": None, "lpips": None, "avge": None}
         if self._evaluator is None:
@@ -260,12 +266,15 @@ class Recorder:
         read as progress made in the last seconds."""
         t0 = time.perf_counter()
         interim = self._views(self.settings.eval_max_views)
-        m = self.evaluate(gaussians, color, None if final else self.settings.eval_max_views)
+        scored = list(self.scene.test) if final else interim
+        m = self._evaluate(gaussians, color, scored)
         eval_s = time.perf_counter() - t0
         loss = self._loss_sum / self._loss_count if self._loss_count else None
         self._loss_sum, self._loss_count = 0.0, 0
 
-        def make(scores: dict[str, float | None], views: int, last: bool) -> ProgressRecord:
+        def make(
+            scores: dict[str, float | None], views: int, last: bool, s: float
+        ) -> ProgressRecord:
             return ProgressRecord(
                 iteration=iteration,
                 elapsed_s=elapsed_s,
@@ -275,16 +284,16 @@ class Recorder:
                 lpips=scores["lpips"],
                 avge=scores["avge"],
                 n_gaussians=len(gaussians),
-                eval_s=eval_s if last or not final else 0.0,
+                eval_s=s,
                 final=last,
                 views=views,
             )
 
-        out = [make(m, len(interim if not final else self.scene.test), final)]
-        if final and 0 < len(interim) < len(self.scene.test):
+        out = [make(m, len(scored), final, eval_s)]
+        if final and 0 < len(interim) < len(scored):
             assert self._evaluator is not None  # the final evaluation made it
             subset = self._evaluator.mean([self.view_scores[v.name] for v in interim])
-            out.insert(0, make(subset, len(interim), False))
+            out.insert(0, make(subset, len(interim), False, 0.0))  # no render of its own
         self.records += [r.to_dict() for r in out]
         if self.out_dir is not None and not final:
             # Keep the on-disk series current so a long run can be followed (and a killed one
