@@ -209,23 +209,36 @@ static inline vf vmax(vf a, vf b) {
 }
 #endif
 
-// exp(x) for x <= 0 to ~2 ulp: range reduction by ln 2, degree-7 polynomial, exponent add.
-static inline vf vexp(vf x) {
-  x = vmax(x, splat(-87.0f));
-  const vf t = x * 1.44269504088896341f;
+// exp(-p) for p >= 0 to ~2 ulp: range reduction by ln 2 (n the nearest integer to -p / ln 2), a
+// degree-7 polynomial on the remainder, then the scaling by 2^n. p is clamped to 87 (exp(-87)
+// is about the smallest normal float). Taking p rather than x = -p spares the negation and lets
+// the clamp be one vminps. On AVX-512 the rounding and the scaling are one instruction each
+// (vrndscaleps, vscalefps); AVX2 goes through integers.
+static inline vf vexp_neg(vf p) {
+  p = vmin(p, splat(87.0f));
+  const vf t = p * -1.44269504088896341f;
+#if RASTER_AVX512
+  const vf nf =
+      (vf)_mm512_roundscale_ps((__m512)t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+#else
   const vi n = to_int(t - 0.5f);  // round to nearest for t <= 0
   const vf nf = to_float(n);
-  vf r = x - nf * 0.693145751953125f;
+#endif
+  vf r = -p - nf * 0.693145751953125f;
   r = r - nf * 1.428606765330187045e-06f;
-  vf p = splat(1.0f / 5040.0f);
-  p = p * r + 1.0f / 720.0f;
-  p = p * r + 1.0f / 120.0f;
-  p = p * r + 1.0f / 24.0f;
-  p = p * r + 1.0f / 6.0f;
-  p = p * r + 0.5f;
-  p = p * r + 1.0f;
-  p = p * r + 1.0f;
-  return from_bits(bits_of(p) + (n << 23));
+  vf q = splat(1.0f / 5040.0f);
+  q = q * r + 1.0f / 720.0f;
+  q = q * r + 1.0f / 120.0f;
+  q = q * r + 1.0f / 24.0f;
+  q = q * r + 1.0f / 6.0f;
+  q = q * r + 0.5f;
+  q = q * r + 1.0f;
+  q = q * r + 1.0f;
+#if RASTER_AVX512
+  return (vf)_mm512_scalef_ps((__m512)q, (__m512)nf);
+#else
+  return from_bits(bits_of(q) + (n << 23));
+#endif
 }
 
 // 1 / x for x in [0.001, 1] (here 1 - alpha with alpha <= 0.999): the hardware reciprocal
@@ -341,20 +354,19 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
       const float dy = g.my - ((float)(y0 + r) + 0.5f);
       evaluated += TILE;
       const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
-      const vf alpha = vmin(splat(0.999f), g.o * vexp(-power));
+      const vf alpha = vmin(splat(0.999f), g.o * vexp_neg(power));
       const vi valid = active[r] & (power >= 0.f) & (alpha >= kAlphaMin);
       const vf next_t = T[r] * (1.f - alpha);
       const vi stop = valid & (next_t <= kMinTransmittance);
       const vi blend = valid & ~stop;
-      const uint32_t bm = movemask(blend);
-      if (bm) {
-        blended += __builtin_popcount(bm);
-        const vf w = vsel(blend, alpha * T[r], vf{});
-        for (int k = 0; k < C; ++k) accv[k * TILE + r] += w * f[k];
-        accv[C * TILE + r] += w * g.z;
-        T[r] = vsel(blend, next_t, T[r]);
-        last[r] = vseli(blend, splati(j - begin + 1), last[r]);
-      }
+      // No branch on "any lane blends": it depends on the exp, and each misprediction exposed
+      // that latency chain (as in the backward). Lanes that do not blend add exact zeros.
+      blended += __builtin_popcount(movemask(blend));
+      const vf w = vsel(blend, alpha * T[r], vf{});
+      for (int k = 0; k < C; ++k) accv[k * TILE + r] += w * f[k];
+      accv[C * TILE + r] += w * g.z;
+      T[r] = vsel(blend, next_t, T[r]);
+      last[r] = vseli(blend, splati(j - begin + 1), last[r]);
       if (movemask(stop)) {
         active[r] &= ~stop;
         if (!movemask(active[r])) live &= ~(1u << r);
@@ -387,10 +399,21 @@ void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc) {
 
 // Backward of one tile: walks the tile's list back to front, undoing the transmittance, and adds
 // per-Gaussian gradients (layout GradLayout) into grad (this thread's buffer, indexed by rank).
-// scratch holds (2 C + 3) * 256 + S * 16 floats (64-byte aligned). Geo = false skips the 2D mean
+// scratch holds (C + 2) * 256 + S * 16 floats (64-byte aligned). Geo = false skips the 2D mean
 // and conic gradients (their slots stay zero): the soft-depth pass trains opacities only.
 // Op = true also reads v_depth_opacity, whose dL/dalpha_i reaches the opacity slot only.
 // CC: the channel count when known at compile time, -1 for any.
+//
+// The per-pixel algebra is arranged to cost few vector operations per Gaussian-row, since the
+// kernel is compute-bound:
+// - dL/dalpha_i = sum_k (f_ik T_i - A_ik / (1 - alpha_i)) g_k + K T_final / (1 - alpha_i), with
+//   A_ik = sum over later Gaussians j of w_j f_jk and g_k = dL/dout_k (depth as channel C). The
+//   channels enter only through fg_i = sum_k f_ik g_k and B_i = sum_k A_ik g_k, and B grows by
+//   w_i fg_i from one Gaussian to the next: one running B per pixel instead of C + 1 running
+//   A_k, and dL/dalpha_i = T_i fg_i + (K T_final - B_i) / (1 - alpha_i).
+// - The 2D mean and conic gradients are sums over the tile's rows of polynomials in dy (a
+//   scalar per row) times v_sigma: each lane keeps sum v_sigma, sum dy v_sigma and
+//   sum dy^2 v_sigma, and the five gradients are formed from those once per Gaussian.
 template <bool Geo, bool Op, int CC>
 static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* scratch,
                                float* grad) {
@@ -400,10 +423,11 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   const int C = CC >= 0 ? CC : a.channels;
   const int S = C + kGradFixed;
   vf* vimg = reinterpret_cast<vf*>(scratch);  // [(C + 1)][16]: dL/dimage, dL/ddepth last
-  vf* after = vimg + (C + 1) * TILE;           // [(C + 1)][16]: sum of w f over later Gaussians
-  vf* gacc = after + (C + 1) * TILE;           // [S]: per-Gaussian accumulators
+  vf* gacc = vimg + (C + 1) * TILE;            // [S]: per-Gaussian accumulators
   vf* vop = gacc + S;                          // [16]: dL/ddepth of the opacity-only loss
   vf T[TILE], kbg[TILE];
+  vf behind[TILE];    // B: sum over later Gaussians of w * (sum_k f_k dL/dout_k), per pixel
+  vf behind_z[TILE];  // sum over later Gaussians of w z (the depth behind), for Op only
   vi last[TILE];
   vi row_last = vi{};  // per row (as a lane): 1 + the last list position any pixel blended
   vf lanex, row_index;
@@ -415,12 +439,11 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
   for (int r = 0; r < TILE; ++r) {
     T[r] = vf{};
     kbg[r] = vf{};
+    behind[r] = vf{};
+    behind_z[r] = vf{};
     last[r] = vi{};
     row_last[r] = 0;
-    for (int k = 0; k <= C; ++k) {
-      vimg[k * TILE + r] = vf{};
-      after[k * TILE + r] = vf{};
-    }
+    for (int k = 0; k <= C; ++k) vimg[k * TILE + r] = vf{};
     if constexpr (Op) vop[r] = vf{};
     if (r >= rows) continue;
     const int64_t base = (int64_t)(y0 + r) * a.width + x0;
@@ -465,12 +488,13 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     // Every row the ellipse reaches is evaluated without a branch on "any lane valid": that
     // test is data dependent, and each misprediction exposed the exp's latency chain. Invalid
     // lanes contribute exact zeros (w = 0, masked alpha gradients) and keep their state.
-    for (int s = 0; s < S; ++s) gacc[s] = vf{};
+    for (int s = kGradO; s < S; ++s) gacc[s] = vf{};
+    vf q0 = vf{}, q1 = vf{}, q2 = vf{};  // per lane: sum of oe dL/dalpha, times 1, dy, dy^2
     for (; hits; hits &= hits - 1) {
       const int r = __builtin_ctz(hits);
       const float dy = g.my - ((float)(y0 + r) + 0.5f);
       const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
-      const vf e = vexp(-power);
+      const vf e = vexp_neg(power);
       const vf oe = g.o * e;
       const vf alpha = vmin(splat(0.999f), oe);
       const vi valid = (splati(jj) < last[r]) & (power >= 0.f) & (alpha >= kAlphaMin);
@@ -478,45 +502,51 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       const vf t_before = vsel(valid, T[r] * ra, T[r]);
       assign(T[r], t_before);
       const vf w = vsel(valid, alpha * t_before, vf{});
-      // dL/dalpha = sum_k (f_k T - after_k / (1 - alpha)) dL/dout_k + T_final/(1-alpha) * K.
-      vf v_alpha = kbg[r] * ra;
+      // fg = sum_k f_k dL/dout_k over the colour channels and depth.
+      const vf gd = vimg[C * TILE + r];
+      vf fg = g.z * gd;
       for (int k = 0; k < C; ++k) {
         const vf gk = vimg[k * TILE + r];
-        v_alpha += (f[k] * t_before - after[k * TILE + r] * ra) * gk;
+        fg += f[k] * gk;
         gacc[kGradFixed + k] += w * gk;
-        after[k * TILE + r] = vsel(valid, after[k * TILE + r] + w * f[k], after[k * TILE + r]);
       }
-      vf v_alpha_op = vf{};
-      {
-        const vf gd = vimg[C * TILE + r];
-        // d(depth)/d(alpha_i) is shared by both depth gradients; taken before `after` grows.
-        const vf dz = g.z * t_before - after[C * TILE + r] * ra;
-        v_alpha += dz * gd;
-        if constexpr (Op) v_alpha_op = dz * vop[r];
-        gacc[kGradZ] += w * gd;
-        after[C * TILE + r] = vsel(valid, after[C * TILE + r] + w * g.z, after[C * TILE + r]);
-      }
+      gacc[kGradZ] += w * gd;
+      const vf v_alpha = t_before * fg + (kbg[r] - behind[r]) * ra;
+      // w is zero where the pixel does not blend this Gaussian: the running sums keep their value.
+      behind[r] += w * fg;
       // The 0.999 clamp has no gradient (gsplat: only when o * exp(-power) <= 0.999).
       const vi live = valid & (oe <= 0.999f);
       const vf va = vsel(live, v_alpha, vf{});
-      if constexpr (Op)
-        gacc[kGradO] += e * vsel(live, v_alpha + v_alpha_op, vf{});
-      else
+      if constexpr (Op) {
+        // d(depth)/d(alpha_i), for the depth gradient that reaches the opacity alone.
+        const vf dz = g.z * t_before - behind_z[r] * ra;
+        behind_z[r] += w * g.z;
+        gacc[kGradO] += e * vsel(live, v_alpha + dz * vop[r], vf{});
+      } else {
         gacc[kGradO] += e * va;
-      if constexpr (Geo) {
-        const vf v_sigma = -oe * va;
-        gacc[kGradA] += 0.5f * dx * dx * v_sigma;
-        gacc[kGradB] += dx * dy * v_sigma;
-        gacc[kGradC] += (0.5f * dy * dy) * v_sigma;
-        gacc[kGradX] += v_sigma * (g.a * dx + g.b * dy);
-        gacc[kGradY] += v_sigma * (g.b * dx + g.c * dy);
       }
+      if constexpr (Geo) {
+        const vf s = oe * va;  // -dL/dpower
+        q0 += s;
+        q1 += dy * s;
+        q2 += (dy * dy) * s;
+      }
+    }
+    if constexpr (Geo) {
+      // dL/dpower = -s and power = a dx^2 / 2 + b dx dy + c dy^2 / 2, summed over the rows.
+      gacc[kGradA] = -(0.5f * dx * dx) * q0;
+      gacc[kGradB] = -dx * q1;
+      gacc[kGradC] = -0.5f * q2;
+      gacc[kGradX] = -(g.a * dx * q0 + g.b * q1);
+      gacc[kGradY] = -(g.b * dx * q0 + g.c * q1);
+    } else {
+      for (int s = 0; s < kGradO; ++s) gacc[s] = vf{};
     }
     {
       float* out = grad + (int64_t)rank * S;
       if (S <= 16) {
-        // Without Geo the geometry slots hold zeros (cleared for each Gaussian): adding them is
-        // a no-op, and one tree over all S slots is cheaper than skipping them.
+        // Without Geo the geometry slots hold zeros: adding them is a no-op, and one tree over
+        // all S slots is cheaper than skipping them.
         add_lane_sums(gacc, S, out);
       } else {
         for (int s = Geo ? 0 : kGradO; s < S; ++s) out[s] += hsum(gacc[s]);

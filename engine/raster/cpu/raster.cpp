@@ -259,7 +259,7 @@ std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
   const BwdFn bwd = variant().bwd;
 #pragma omp parallel num_threads(nt)
   {
-    AlignedBuf scratch((size_t)(2 * (C + 1) * TILE + S + TILE) * TILE);
+    AlignedBuf scratch((size_t)((C + 1) * TILE + S + TILE) * TILE);
     float* mine = grads.data() + (size_t)omp_get_thread_num() * M * S;
     // A fixed tile -> thread map (round robin): each thread's partial sums, and so the rounding
     // of their total, are the same on every run with the same thread count. With a dynamic
