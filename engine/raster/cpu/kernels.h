@@ -209,6 +209,47 @@ static inline vf vmax(vf a, vf b) {
 }
 #endif
 
+// Lane masks of comparisons (vm). On AVX-512 a vm is a mask register (__mmask16, one bit per
+// lane): comparisons write it directly, and/andnot are single k-register operations, and
+// selects are masked moves. As a 0/-1 vector, as on AVX2, every mask is materialised in a
+// vector register and converted back for each select, which cost several instructions per
+// blend and the register pressure that pushed the blend's running state out to memory.
+#if RASTER_AVX512
+typedef __mmask16 vm;
+static inline vm m_ge(vf a, float b) {
+  return _mm512_cmp_ps_mask((__m512)a, _mm512_set1_ps(b), _CMP_GE_OQ);
+}
+static inline vm m_le(vf a, float b) {
+  return _mm512_cmp_ps_mask((__m512)a, _mm512_set1_ps(b), _CMP_LE_OQ);
+}
+static inline vm m_and(vm a, vm b) { return (vm)(a & b); }
+static inline vm m_andnot(vm a, vm b) { return (vm)(a & ~b); }  // a and not b
+static inline uint32_t m_bits(vm m) { return m; }
+static inline vf m_sel(vm m, vf a, vf b) {
+  return (vf)_mm512_mask_blend_ps(m, (__m512)b, (__m512)a);
+}
+static inline vi m_seli(vm m, vi a, vi b) {
+  return (vi)_mm512_mask_blend_epi32(m, (__m512i)b, (__m512i)a);
+}
+static inline vf m_mulz(vm m, vf a, vf b) {  // a * b where m is set, else 0
+  return (vf)_mm512_maskz_mul_ps(m, (__m512)a, (__m512)b);
+}
+static inline vm m_of(vi m) { return _mm512_movepi32_mask((__m512i)m); }
+static inline vm m_lti(vi a, vi b) { return _mm512_cmplt_epi32_mask((__m512i)a, (__m512i)b); }
+#else
+typedef vi vm;
+static inline vm m_ge(vf a, float b) { return a >= b; }
+static inline vm m_le(vf a, float b) { return a <= b; }
+static inline vm m_and(vm a, vm b) { return a & b; }
+static inline vm m_andnot(vm a, vm b) { return a & ~b; }
+static inline uint32_t m_bits(vm m) { return movemask(m); }
+static inline vf m_sel(vm m, vf a, vf b) { return vsel(m, a, b); }
+static inline vi m_seli(vm m, vi a, vi b) { return vseli(m, a, b); }
+static inline vf m_mulz(vm m, vf a, vf b) { return vsel(m, a * b, vf{}); }
+static inline vm m_of(vi m) { return m; }
+static inline vm m_lti(vi a, vi b) { return a < b; }
+#endif
+
 // exp(-p) for p >= 0 to ~2 ulp: range reduction by ln 2 (n the nearest integer to -p / ln 2), a
 // degree-7 polynomial on the remainder, then the scaling by 2^n. p is clamped to 87 (exp(-87)
 // is about the smallest normal float). Taking p rather than x = -p spares the negation and lets
@@ -254,16 +295,6 @@ static inline vf vrcp(vf x) {
   return r * (2.f - x * r);
 }
 
-// Pixel rows of the tile (relative, [r0, r1]) a Gaussian can reach; false when none.
-static inline bool row_range(const GaussRec& g, int y0, int rows, int& r0, int& r1) {
-  const float lo = std::ceil(g.my - g.hy - 0.5f) - (float)y0;
-  const float hi = std::floor(g.my + g.hy - 0.5f) - (float)y0;
-  if (hi < 0.f || lo > (float)(rows - 1)) return false;
-  r0 = lo < 0.f ? 0 : (int)lo;
-  r1 = hi > (float)(rows - 1) ? rows - 1 : (int)hi;
-  return r0 <= r1;
-}
-
 #if RASTER_AVX512
 static inline vf vsqrt(vf x) { return (vf)_mm512_sqrt_ps((__m512)x); }
 static inline vf vceil(vf x) {
@@ -287,22 +318,35 @@ static inline vf vfloor(vf x) {
 // How many list entries ahead the blend loops prefetch a Gaussian's record and features.
 constexpr int32_t kPrefetch = 8;
 
-// Bit r set for each tile row r in [r0, r1] whose pixel centres (v + 0.5) the Gaussian's cull
-// ellipse crosses inside [x0, x0 + 16): all 16 rows tested at once, one vector lane per row, so
-// the per-row loops below visit only rows that hit, without a data-dependent branch per row.
-// The cull keeps a margin (GaussRec::two_a_t), so rounding here never drops a pixel that passes
-// the alpha test.
-static inline uint32_t row_hit_mask(const GaussRec& g, int y0, int x0, int r0, int r1,
-                                    vf row_index) {
-  const vf dy = g.my - (row_index + ((float)y0 + 0.5f));
+// Bit r set for each tile row r whose pixel centres (v + 0.5) the Gaussian's cull ellipse
+// crosses inside [x0, x0 + 16): all 16 rows tested at once, one vector lane per row, so the
+// per-row loops below visit only rows that hit, without a data-dependent branch per row. dy
+// receives each row's offset from the centre, g.my - (y0 + r + 0.5). The cull keeps a margin
+// (GaussRec::two_a_t), so rounding here never drops a pixel that passes the alpha test. Rows
+// past the image's last are the caller's to mask (rows that cannot blend).
+static inline uint32_t row_hit_mask(const GaussRec& g, int y0, int x0, vf row_index, vf& dy) {
+  dy = g.my - (row_index + ((float)y0 + 0.5f));
   const vf disc = g.two_a_t - g.det * dy * dy;
-  const vi in_range = (row_index >= (float)r0) & (row_index <= (float)r1) & (disc >= 0.f);
   const vf half = vsqrt(vmax(disc, vf{})) * g.inv_a;
   const vf cx = g.mx + g.b * dy * g.inv_a;  // centre of each row's x interval
   const vf ulo = vceil(cx - half - 0.5f);
   const vf uhi = vfloor(cx + half - 0.5f);
-  return movemask(in_range & (uhi >= (float)x0) & (ulo <= (float)(x0 + 15)));
+  return movemask((disc >= 0.f) & (uhi >= (float)x0) & (ulo <= (float)(x0 + 15)));
 }
+
+// Gaussians per batch of the blend loops (see forward_tile_impl).
+constexpr int kBatch = 32;
+
+// One Gaussian of a batch: what every row it reaches shares.
+struct BatchG {
+  vf dx;         // centre x minus each lane's pixel centre
+  vf dx2;        // a dx^2 / 2
+  vf cdy2;       // c dy^2 / 2 for each tile row (lane r: row r)
+  vf bdy;        // b dy for each tile row
+  float o, z;    // opacity, depth
+  const float* f;  // features
+  int32_t pos;   // 1 + its position in the tile list
+};
 
 // Forward blending of one tile. acc is scratch of (C + 1) * 256 floats (64-byte aligned).
 // CC: the channel count when known at compile time (the channel loops unroll), -1 for any.
@@ -316,7 +360,7 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
   for (int i = 0; i < (C + 1) * TILE; ++i) accv[i] = vf{};
   vf T[TILE];
   vi last[TILE];
-  vi active[TILE];
+  vm active[TILE];  // lanes still blending
   vf lanex, row_index;
   vi lane_in;
   for (int l = 0; l < TILE; ++l) {
@@ -328,49 +372,94 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
   for (int r = 0; r < TILE; ++r) {
     T[r] = splat(1.f);
     last[r] = vi{};
-    active[r] = r < rows ? lane_in : vi{};
+    active[r] = m_of(r < rows ? lane_in : vi{});
   }
   int64_t evaluated = 0, blended = 0;
   const int32_t begin = a.offsets[tile_y * a.tiles_x + tile_x];
   const int32_t end = a.offsets[tile_y * a.tiles_x + tile_x + 1];
-  for (int32_t j = begin; j < end && live; ++j) {
-    // The list visits records in depth order but far apart in memory: fetch ahead.
-    if (j + kPrefetch < end) {
-      const int32_t ahead = a.list[j + kPrefetch];
-      __builtin_prefetch(a.recs + ahead);
-      __builtin_prefetch(a.feats + (int64_t)ahead * C);
-    }
-    const int32_t rank = a.list[j];
-    const GaussRec& g = a.recs[rank];
-    int r0, r1;
-    if (!row_range(g, y0, rows, r0, r1)) continue;
-    const float* f = a.feats + (int64_t)rank * C;
-    uint32_t hits = row_hit_mask(g, y0, x0, r0, r1, row_index) & live;
-    if (!hits) continue;
-    const vf dx = g.mx - lanex;
-    const vf dx2 = 0.5f * g.a * dx * dx;
-    for (; hits; hits &= hits - 1) {
-      const int r = __builtin_ctz(hits);
-      const float dy = g.my - ((float)(y0 + r) + 0.5f);
-      evaluated += TILE;
-      const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
-      const vf alpha = vmin(splat(0.999f), g.o * vexp_neg(power));
-      const vi valid = active[r] & (power >= 0.f) & (alpha >= kAlphaMin);
-      const vf next_t = T[r] * (1.f - alpha);
-      const vi stop = valid & (next_t <= kMinTransmittance);
-      const vi blend = valid & ~stop;
-      // No branch on "any lane blends": it depends on the exp, and each misprediction exposed
-      // that latency chain (as in the backward). Lanes that do not blend add exact zeros.
-      blended += __builtin_popcount(movemask(blend));
-      const vf w = vsel(blend, alpha * T[r], vf{});
-      for (int k = 0; k < C; ++k) accv[k * TILE + r] += w * f[k];
-      accv[C * TILE + r] += w * g.z;
-      T[r] = vsel(blend, next_t, T[r]);
-      last[r] = vseli(blend, splati(j - begin + 1), last[r]);
-      if (movemask(stop)) {
-        active[r] &= ~stop;
-        if (!movemask(active[r])) live &= ~(1u << r);
+  // The list is walked in batches of kBatch Gaussians: first each Gaussian's rows are listed,
+  // row by row (in depth order within a row), then each row blends its list with its state
+  // (transmittance, accumulators, last position, live lanes) held in registers. Blending
+  // Gaussian by Gaussian instead kept that state in memory, indexed by row, and every blend
+  // waited on the previous one's stores to the same row.
+  BatchG bg[kBatch];
+  uint8_t jobs[TILE][kBatch];  // per row: the batch's Gaussians that reach it, in depth order
+  int count[TILE];
+  int32_t j = begin;
+  while (j < end && live) {
+    int nb = 0;
+    for (int r = 0; r < TILE; ++r) count[r] = 0;
+    for (; j < end && nb < kBatch; ++j) {
+      // The list visits records in depth order but far apart in memory: fetch ahead.
+      if (j + kPrefetch < end) {
+        const int32_t ahead = a.list[j + kPrefetch];
+        __builtin_prefetch(a.recs + ahead);
+        __builtin_prefetch(a.feats + (int64_t)ahead * C);
       }
+      const int32_t rank = a.list[j];
+      const GaussRec& g = a.recs[rank];
+      vf dy;
+      uint32_t hits = row_hit_mask(g, y0, x0, row_index, dy) & live;
+      if (!hits) continue;
+      BatchG& b = bg[nb];
+      b.dx = g.mx - lanex;
+      b.dx2 = 0.5f * g.a * b.dx * b.dx;
+      b.cdy2 = 0.5f * g.c * dy * dy;
+      b.bdy = g.b * dy;
+      b.o = g.o;
+      b.z = g.z;
+      b.f = a.feats + (int64_t)rank * C;
+      b.pos = j - begin + 1;
+      for (; hits; hits &= hits - 1) {
+        const int r = __builtin_ctz(hits);
+        jobs[r][count[r]++] = (uint8_t)nb;
+      }
+      ++nb;
+    }
+    for (int r = 0; r < rows; ++r) {
+      const int n = count[r];
+      if (!n || !(live >> r & 1)) continue;
+      evaluated += (int64_t)TILE * n;
+      vf t_r = T[r];
+      vm act = active[r];
+      vi lst = last[r];
+      vf acc_r[(CC >= 0 ? CC : 0) + 1];
+      if constexpr (CC >= 0)
+        for (int k = 0; k <= C; ++k) acc_r[k] = accv[k * TILE + r];
+      for (int q = 0; q < n; ++q) {
+        const BatchG& b = bg[jobs[r][q]];
+        const vf power = b.dx2 + b.cdy2[r] + b.bdy[r] * b.dx;
+        const vf alpha = vmin(splat(0.999f), b.o * vexp_neg(power));
+        const vm valid = m_and(m_and(act, m_ge(power, 0.f)), m_ge(alpha, kAlphaMin));
+        const vf next_t = t_r * (1.f - alpha);
+        const vm stop = m_and(valid, m_le(next_t, kMinTransmittance));
+        const vm blend = m_andnot(valid, stop);
+        // No branch on "any lane blends": it depends on the exp, and a misprediction exposes
+        // that latency chain. Lanes that do not blend add exact zeros.
+        blended += __builtin_popcount(m_bits(blend));
+        const vf w = m_mulz(blend, alpha, t_r);
+        if constexpr (CC >= 0) {
+          for (int k = 0; k < C; ++k) acc_r[k] += w * b.f[k];
+          acc_r[C] += w * b.z;
+        } else {
+          for (int k = 0; k < C; ++k) accv[k * TILE + r] += w * b.f[k];
+          accv[C * TILE + r] += w * b.z;
+        }
+        t_r = m_sel(blend, next_t, t_r);
+        lst = m_seli(blend, splati(b.pos), lst);
+        if (m_bits(stop)) {
+          act = m_andnot(act, stop);
+          if (!m_bits(act)) {
+            live &= ~(1u << r);
+            break;
+          }
+        }
+      }
+      assign(T[r], t_r);
+      active[r] = act;
+      last[r] = lst;
+      if constexpr (CC >= 0)
+        for (int k = 0; k <= C; ++k) assign(accv[k * TILE + r], acc_r[k]);
     }
   }
   for (int r = 0; r < rows; ++r) {
@@ -477,31 +566,38 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     }
     const int32_t rank = a.list[begin + jj];
     const GaussRec& g = a.recs[rank];
-    int r0, r1;
-    if (!row_range(g, y0, rows, r0, r1)) continue;
     const float* f = a.feats + (int64_t)rank * C;
     // Rows where some pixel blended this Gaussian or a later one, and the ellipse reaches.
-    uint32_t hits = row_hit_mask(g, y0, x0, r0, r1, row_index) & movemask(splati(jj) < row_last);
+    vf dyv;
+    uint32_t hits = row_hit_mask(g, y0, x0, row_index, dyv) & movemask(splati(jj) < row_last);
     if (!hits) continue;
     const vf dx = g.mx - lanex;
     const vf dx2 = 0.5f * g.a * dx * dx;
+    // Each row's terms as vectors over the tile's rows (lane r: row r), read back one lane per
+    // row as a broadcast operand.
+    alignas(64) float row_terms[4][TILE];
+    *reinterpret_cast<vf*>(row_terms[0]) = 0.5f * g.c * dyv * dyv;  // c dy^2 / 2
+    *reinterpret_cast<vf*>(row_terms[1]) = g.b * dyv;               // b dy
+    *reinterpret_cast<vf*>(row_terms[2]) = dyv;
+    *reinterpret_cast<vf*>(row_terms[3]) = dyv * dyv;
     // Every row the ellipse reaches is evaluated without a branch on "any lane valid": that
     // test is data dependent, and each misprediction exposed the exp's latency chain. Invalid
     // lanes contribute exact zeros (w = 0, masked alpha gradients) and keep their state.
     for (int s = kGradO; s < S; ++s) gacc[s] = vf{};
     vf q0 = vf{}, q1 = vf{}, q2 = vf{};  // per lane: sum of oe dL/dalpha, times 1, dy, dy^2
+    const vi jj_v = splati(jj);
     for (; hits; hits &= hits - 1) {
       const int r = __builtin_ctz(hits);
-      const float dy = g.my - ((float)(y0 + r) + 0.5f);
-      const vf power = dx2 + (0.5f * g.c * dy * dy) + g.b * dy * dx;
+      const vf power = dx2 + row_terms[0][r] + row_terms[1][r] * dx;
       const vf e = vexp_neg(power);
       const vf oe = g.o * e;
       const vf alpha = vmin(splat(0.999f), oe);
-      const vi valid = (splati(jj) < last[r]) & (power >= 0.f) & (alpha >= kAlphaMin);
+      const vm valid =
+          m_and(m_and(m_lti(jj_v, last[r]), m_ge(power, 0.f)), m_ge(alpha, kAlphaMin));
       const vf ra = vrcp(1.f - alpha);
-      const vf t_before = vsel(valid, T[r] * ra, T[r]);
+      const vf t_before = m_sel(valid, T[r] * ra, T[r]);
       assign(T[r], t_before);
-      const vf w = vsel(valid, alpha * t_before, vf{});
+      const vf w = m_mulz(valid, alpha, t_before);
       // fg = sum_k f_k dL/dout_k over the colour channels and depth.
       const vf gd = vimg[C * TILE + r];
       vf fg = g.z * gd;
@@ -515,21 +611,21 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       // w is zero where the pixel does not blend this Gaussian: the running sums keep their value.
       behind[r] += w * fg;
       // The 0.999 clamp has no gradient (gsplat: only when o * exp(-power) <= 0.999).
-      const vi live = valid & (oe <= 0.999f);
-      const vf va = vsel(live, v_alpha, vf{});
+      const vm live = m_and(valid, m_le(oe, 0.999f));
+      const vf va = m_sel(live, v_alpha, vf{});
       if constexpr (Op) {
         // d(depth)/d(alpha_i), for the depth gradient that reaches the opacity alone.
         const vf dz = g.z * t_before - behind_z[r] * ra;
         behind_z[r] += w * g.z;
-        gacc[kGradO] += e * vsel(live, v_alpha + dz * vop[r], vf{});
+        gacc[kGradO] += e * m_sel(live, v_alpha + dz * vop[r], vf{});
       } else {
         gacc[kGradO] += e * va;
       }
       if constexpr (Geo) {
         const vf s = oe * va;  // -dL/dpower
         q0 += s;
-        q1 += dy * s;
-        q2 += (dy * dy) * s;
+        q1 += row_terms[2][r] * s;
+        q2 += row_terms[3][r] * s;
       }
     }
     if constexpr (Geo) {
