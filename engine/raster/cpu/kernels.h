@@ -250,36 +250,57 @@ static inline vm m_of(vi m) { return m; }
 static inline vm m_lti(vi a, vi b) { return a < b; }
 #endif
 
-// exp(-p) for p >= 0 to ~2 ulp: range reduction by ln 2 (n the nearest integer to -p / ln 2), a
-// degree-7 polynomial on the remainder, then the scaling by 2^n. p is clamped to 87 (exp(-87)
-// is about the smallest normal float). Taking p rather than x = -p spares the negation and lets
-// the clamp be one vminps. On AVX-512 the rounding and the scaling are one instruction each
-// (vrndscaleps, vscalefps); AVX2 goes through integers.
+// exp(-p[i]) for K vectors p >= 0, to ~2 ulp: range reduction by ln 2 (n the nearest integer
+// to -p / ln 2), the degree-7 Taylor polynomial of the remainder, then the scaling by 2^n. p is
+// clamped to 87 (exp(-87) is about the smallest normal float). Taking p rather than x = -p
+// spares the negation and lets the clamp be one vminps. On AVX-512 the rounding and the scaling
+// are one instruction each (vrndscaleps, vscalefps); AVX2 goes through integers.
+//
+// The kernels are bound by this function's dependency chain more than by its operation count,
+// so the polynomial is evaluated by Estrin's scheme (pairs, then the powers r^2 and r^4: a
+// chain of 4 operations instead of Horner's 7), and K > 1 exponentials are computed step by
+// step side by side, which keeps independent work next to each other in the instruction stream.
+template <int K>
+static inline void vexp_neg_n(const vf* pin, vf* out) {
+  vf p[K], nf[K], r[K];
+#if !RASTER_AVX512
+  vi n[K];
+#endif
+  for (int i = 0; i < K; ++i) p[i] = vmin(pin[i], splat(87.0f));
+  for (int i = 0; i < K; ++i) {
+    const vf t = p[i] * -1.44269504088896341f;
+#if RASTER_AVX512
+    nf[i] = (vf)_mm512_roundscale_ps((__m512)t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+#else
+    n[i] = to_int(t - 0.5f);  // round to nearest for t <= 0
+    nf[i] = to_float(n[i]);
+#endif
+  }
+  for (int i = 0; i < K; ++i) r[i] = -p[i] - nf[i] * 0.693145751953125f;
+  for (int i = 0; i < K; ++i) r[i] = r[i] - nf[i] * 1.428606765330187045e-06f;
+  vf r2[K], r4[K], p01[K], p23[K], p45[K], p67[K], q[K];
+  for (int i = 0; i < K; ++i) r2[i] = r[i] * r[i];
+  for (int i = 0; i < K; ++i) p01[i] = 1.0f + r[i];
+  for (int i = 0; i < K; ++i) p23[i] = 0.5f + r[i] * (1.0f / 6.0f);
+  for (int i = 0; i < K; ++i) p45[i] = (1.0f / 24.0f) + r[i] * (1.0f / 120.0f);
+  for (int i = 0; i < K; ++i) p67[i] = (1.0f / 720.0f) + r[i] * (1.0f / 5040.0f);
+  for (int i = 0; i < K; ++i) r4[i] = r2[i] * r2[i];
+  for (int i = 0; i < K; ++i) p01[i] = p01[i] + r2[i] * p23[i];
+  for (int i = 0; i < K; ++i) p45[i] = p45[i] + r2[i] * p67[i];
+  for (int i = 0; i < K; ++i) q[i] = p01[i] + r4[i] * p45[i];
+  for (int i = 0; i < K; ++i) {
+#if RASTER_AVX512
+    out[i] = (vf)_mm512_scalef_ps((__m512)q[i], (__m512)nf[i]);
+#else
+    out[i] = from_bits(bits_of(q[i]) + (n[i] << 23));
+#endif
+  }
+}
+
 static inline vf vexp_neg(vf p) {
-  p = vmin(p, splat(87.0f));
-  const vf t = p * -1.44269504088896341f;
-#if RASTER_AVX512
-  const vf nf =
-      (vf)_mm512_roundscale_ps((__m512)t, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-#else
-  const vi n = to_int(t - 0.5f);  // round to nearest for t <= 0
-  const vf nf = to_float(n);
-#endif
-  vf r = -p - nf * 0.693145751953125f;
-  r = r - nf * 1.428606765330187045e-06f;
-  vf q = splat(1.0f / 5040.0f);
-  q = q * r + 1.0f / 720.0f;
-  q = q * r + 1.0f / 120.0f;
-  q = q * r + 1.0f / 24.0f;
-  q = q * r + 1.0f / 6.0f;
-  q = q * r + 0.5f;
-  q = q * r + 1.0f;
-  q = q * r + 1.0f;
-#if RASTER_AVX512
-  return (vf)_mm512_scalef_ps((__m512)q, (__m512)nf);
-#else
-  return from_bits(bits_of(q) + (n << 23));
-#endif
+  vf e;
+  vexp_neg_n<1>(&p, &e);
+  return e;
 }
 
 // 1 / x for x in [0.001, 1] (here 1 - alpha with alpha <= 0.999): the hardware reciprocal
@@ -426,10 +447,8 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
       vf acc_r[(CC >= 0 ? CC : 0) + 1];
       if constexpr (CC >= 0)
         for (int k = 0; k <= C; ++k) acc_r[k] = accv[k * TILE + r];
-      for (int q = 0; q < n; ++q) {
-        const BatchG& b = bg[jobs[r][q]];
-        const vf power = b.dx2 + b.cdy2[r] + b.bdy[r] * b.dx;
-        const vf alpha = vmin(splat(0.999f), b.o * vexp_neg(power));
+      // Blends one job; true when it leaves every lane of the row stopped.
+      auto blend_one = [&](const BatchG& b, vf power, vf alpha) -> bool {
         const vm valid = m_and(m_and(act, m_ge(power, 0.f)), m_ge(alpha, kAlphaMin));
         const vf next_t = t_r * (1.f - alpha);
         const vm stop = m_and(valid, m_le(next_t, kMinTransmittance));
@@ -451,9 +470,29 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
           act = m_andnot(act, stop);
           if (!m_bits(act)) {
             live &= ~(1u << r);
-            break;
+            return true;
           }
         }
+        return false;
+      };
+      // Two jobs at a time: their exponentials (the long chains) side by side, then the two
+      // blends in depth order.
+      int q = 0;
+      for (; q + 1 < n; q += 2) {
+        const BatchG& b0 = bg[jobs[r][q]];
+        const BatchG& b1 = bg[jobs[r][q + 1]];
+        const vf power[2] = {b0.dx2 + b0.cdy2[r] + b0.bdy[r] * b0.dx,
+                             b1.dx2 + b1.cdy2[r] + b1.bdy[r] * b1.dx};
+        vf e[2];
+        vexp_neg_n<2>(power, e);
+        const vf alpha0 = vmin(splat(0.999f), b0.o * e[0]);
+        const vf alpha1 = vmin(splat(0.999f), b1.o * e[1]);
+        if (blend_one(b0, power[0], alpha0) || blend_one(b1, power[1], alpha1)) break;
+      }
+      if (q + 1 == n) {
+        const BatchG& b = bg[jobs[r][q]];
+        const vf power = b.dx2 + b.cdy2[r] + b.bdy[r] * b.dx;
+        blend_one(b, power, vmin(splat(0.999f), b.o * vexp_neg(power)));
       }
       assign(T[r], t_r);
       active[r] = act;
@@ -583,7 +622,13 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
     // Every row the ellipse reaches is evaluated without a branch on "any lane valid": that
     // test is data dependent, and each misprediction exposed the exp's latency chain. Invalid
     // lanes contribute exact zeros (w = 0, masked alpha gradients) and keep their state.
-    for (int s = kGradO; s < S; ++s) gacc[s] = vf{};
+    // The opacity, depth and channel accumulators: local (registers) when the channel count is
+    // known at compile time, else the scratch slots. In scratch, every row's update waited on
+    // the previous row's store to the same slot.
+    constexpr int kLocal = CC >= 0 ? CC + kGradFixed - kGradO : 1;
+    vf local[kLocal];
+    auto acc = [&](int s) -> vf& { return CC >= 0 ? local[s - kGradO] : gacc[s]; };
+    for (int s = kGradO; s < S; ++s) acc(s) = vf{};
     vf q0 = vf{}, q1 = vf{}, q2 = vf{};  // per lane: sum of oe dL/dalpha, times 1, dy, dy^2
     const vi jj_v = splati(jj);
     for (; hits; hits &= hits - 1) {
@@ -604,9 +649,9 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
       for (int k = 0; k < C; ++k) {
         const vf gk = vimg[k * TILE + r];
         fg += f[k] * gk;
-        gacc[kGradFixed + k] += w * gk;
+        acc(kGradFixed + k) += w * gk;
       }
-      gacc[kGradZ] += w * gd;
+      acc(kGradZ) += w * gd;
       const vf v_alpha = t_before * fg + (kbg[r] - behind[r]) * ra;
       // w is zero where the pixel does not blend this Gaussian: the running sums keep their value.
       behind[r] += w * fg;
@@ -617,9 +662,9 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         // d(depth)/d(alpha_i), for the depth gradient that reaches the opacity alone.
         const vf dz = g.z * t_before - behind_z[r] * ra;
         behind_z[r] += w * g.z;
-        gacc[kGradO] += e * m_sel(live, v_alpha + dz * vop[r], vf{});
+        acc(kGradO) += e * m_sel(live, v_alpha + dz * vop[r], vf{});
       } else {
-        gacc[kGradO] += e * va;
+        acc(kGradO) += e * va;
       }
       if constexpr (Geo) {
         const vf s = oe * va;  // -dL/dpower
@@ -628,6 +673,8 @@ static void backward_tile_impl(const TileBwd& a, int tile_x, int tile_y, float* 
         q2 += row_terms[3][r] * s;
       }
     }
+    if constexpr (CC >= 0)
+      for (int s = kGradO; s < S; ++s) assign(gacc[s], local[s - kGradO]);
     if constexpr (Geo) {
       // dL/dpower = -s and power = a dx^2 / 2 + b dx dy + c dy^2 / 2, summed over the rows.
       gacc[kGradA] = -(0.5f * dx * dx) * q0;
