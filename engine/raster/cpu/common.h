@@ -62,8 +62,10 @@ struct TileBwd {
 namespace avx2 {
 void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc);
 void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad);
+void reciprocal(const float* x, const float* estimate, float* out, int64_t n);
 }  // namespace avx2
 namespace avx512 {
 void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc);
 void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad);
+void reciprocal(const float* x, const float* estimate, float* out, int64_t n);
 }  // namespace avx512

@@ -303,18 +303,54 @@ static inline vf vexp_neg(vf p) {
   return e;
 }
 
-// 1 / x for x in [0.001, 1] (here 1 - alpha with alpha <= 0.999): the hardware reciprocal
-// estimate refined by one Newton step, r (2 - x r), to within about 2 ulp of the division. The
-// backward needs one per Gaussian-row; a vector division there cost more than the rest of the
-// transmittance bookkeeping.
-static inline vf vrcp(vf x) {
+// a * b + c and c - a * b, each with one rounding (fused), spelled out so that the rounding does
+// not depend on the compiler's contraction flags.
 #if RASTER_AVX512
-  const vf r = (vf)_mm512_rcp14_ps((__m512)x);
-#else
-  const vf r = vf{{(hf)_mm256_rcp_ps((__m256)x.h[0]), (hf)_mm256_rcp_ps((__m256)x.h[1])}};
-#endif
-  return r * (2.f - x * r);
+static inline vf vfmadd(vf a, vf b, vf c) {
+  return (vf)_mm512_fmadd_ps((__m512)a, (__m512)b, (__m512)c);
 }
+static inline vf vfnmadd(vf a, vf b, vf c) {
+  return (vf)_mm512_fnmadd_ps((__m512)a, (__m512)b, (__m512)c);
+}
+#else
+static inline vf vfmadd(vf a, vf b, vf c) {
+  return vf{{(hf)_mm256_fmadd_ps((__m256)a.h[0], (__m256)b.h[0], (__m256)c.h[0]),
+             (hf)_mm256_fmadd_ps((__m256)a.h[1], (__m256)b.h[1], (__m256)c.h[1])}};
+}
+static inline vf vfnmadd(vf a, vf b, vf c) {
+  return vf{{(hf)_mm256_fnmadd_ps((__m256)a.h[0], (__m256)b.h[0], (__m256)c.h[0]),
+             (hf)_mm256_fnmadd_ps((__m256)a.h[1], (__m256)b.h[1], (__m256)c.h[1])}};
+}
+#endif
+
+// The hardware's reciprocal estimate of x: AVX-512's vrcp14ps (relative error < 2^-14), AVX2's
+// vrcpps (< 1.5 * 2^-12). The estimate's actual values are the vendor's: Intel and AMD CPUs
+// return different estimates for the same x, both within that bound.
+static inline vf vrcp_estimate(vf x) {
+#if RASTER_AVX512
+  return (vf)_mm512_rcp14_ps((__m512)x);
+#else
+  return vf{{(hf)_mm256_rcp_ps((__m256)x.h[0]), (hf)_mm256_rcp_ps((__m256)x.h[1])}};
+#endif
+}
+
+// 1 / x from an estimate r with relative error d (r = (1 - d) / x, |d| <= 1.5 * 2^-12), by the
+// third-order step r (1 + e + e^2) with e = 1 - x r = d computed by one fused operation: the
+// result's relative error is d^3 (< 5e-11) plus its last rounding, so it is the rounded
+// reciprocal on any CPU. The backward divides by 1 - alpha once per blended Gaussian and pixel
+// to undo the transmittance, and an error in that quotient is not random: Newton's second-order
+// step r (2 - x r) leaves -d^2 (every quotient too small, by up to 2.2 roundoffs with AVX2's
+// estimate), which over a list of hundreds of faint Gaussians compounded into the recovered
+// transmittances and failed the float64 comparison on AMD CPUs, whose estimates are less
+// accurate than Intel's (issue 59). One more fused operation than Newton's step; a vector
+// division cost more than the rest of the transmittance bookkeeping.
+static inline vf vrcp_refine(vf x, vf r) {
+  const vf e = vfnmadd(x, r, splat(1.f));
+  return vfmadd(r, vfmadd(e, e, e), r);
+}
+
+// 1 / x for x in [0.001, 1] (here 1 - alpha with alpha <= 0.999), see vrcp_refine.
+static inline vf vrcp(vf x) { return vrcp_refine(x, vrcp_estimate(x)); }
 
 #if RASTER_AVX512
 static inline vf vsqrt(vf x) { return (vf)_mm512_sqrt_ps((__m512)x); }
@@ -716,6 +752,21 @@ void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, flo
   else
     op ? backward_tile_channels<false, true>(a, tile_x, tile_y, scratch, grad)
        : backward_tile_channels<false, false>(a, tile_x, tile_y, scratch, grad);
+}
+
+// out[i] = vrcp_refine(x[i], estimate[i]), 16 at a time (a partial last vector is padded with
+// ones): the reciprocal the backward uses, from a caller's estimate.
+void reciprocal(const float* x, const float* estimate, float* out, int64_t n) {
+  for (int64_t i = 0; i < n; i += TILE) {
+    vf xv = splat(1.f), rv = splat(1.f);
+    const int m = n - i < TILE ? (int)(n - i) : TILE;
+    for (int l = 0; l < m; ++l) {
+      xv[l] = x[i + l];
+      rv[l] = estimate[i + l];
+    }
+    const vf y = vrcp_refine(xv, rv);
+    for (int l = 0; l < m; ++l) out[i + l] = y[l];
+  }
 }
 
 }  // namespace RASTER_NS

@@ -7,6 +7,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -19,11 +20,13 @@ namespace {
 
 using FwdFn = void (*)(const TileFwd&, int, int, float*);
 using BwdFn = void (*)(const TileBwd&, int, int, float*, float*);
+using RcpFn = void (*)(const float*, const float*, float*, int64_t);
 
 struct Variant {
   const char* name;
   FwdFn fwd;
   BwdFn bwd;
+  RcpFn rcp;
 };
 
 bool cpu_has_avx512() {
@@ -32,18 +35,38 @@ bool cpu_has_avx512() {
          __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
 }
 
+const Variant kAvx2 = {"avx2", avx2::forward_tile, avx2::backward_tile, avx2::reciprocal};
+const Variant kAvx512 = {"avx512", avx512::forward_tile, avx512::backward_tile,
+                         avx512::reciprocal};
+
 // The kernel variant for this CPU; SPARSESPLAT_RASTER_ISA=avx2 forces the baseline.
-Variant pick_variant() {
+const Variant* pick_variant() {
   const char* force = std::getenv("SPARSESPLAT_RASTER_ISA");
   const bool want_avx2 = force && std::string(force) == "avx2";
-  if (!want_avx2 && cpu_has_avx512())
-    return {"avx512", avx512::forward_tile, avx512::backward_tile};
-  return {"avx2", avx2::forward_tile, avx2::backward_tile};
+  return !want_avx2 && cpu_has_avx512() ? &kAvx512 : &kAvx2;
 }
 
-const Variant& variant() {
-  static Variant v = pick_variant();
+// The variant in use. Read once at the start of each forward/backward call, so switching it
+// (set_variant, for tests that run both ISAs in one process) never mixes kernels in one call.
+std::atomic<const Variant*>& current_variant() {
+  static std::atomic<const Variant*> v{pick_variant()};
   return v;
+}
+
+const Variant& variant() { return *current_variant().load(); }
+
+std::vector<std::string> available_variants() {
+  std::vector<std::string> names{kAvx2.name};
+  if (cpu_has_avx512()) names.push_back(kAvx512.name);
+  return names;
+}
+
+// Selects the variant by name; returns the previous one's. Unknown or unsupported: error.
+std::string set_variant(const std::string& name) {
+  const Variant* want = name == kAvx2.name ? &kAvx2 : name == kAvx512.name ? &kAvx512 : nullptr;
+  TORCH_CHECK(want != nullptr, "unknown rasterizer kernel variant '", name, "' (avx2, avx512)");
+  TORCH_CHECK(want != &kAvx512 || cpu_has_avx512(), "this CPU has no AVX-512 (avx512f/bw/dq/vl)");
+  return current_variant().exchange(want)->name;
 }
 
 struct AlignedBuf {
@@ -299,8 +322,24 @@ std::vector<torch::Tensor> backward(torch::Tensor recs_t, torch::Tensor feats_t,
   return {v_m2, v_con, v_op, v_dep, v_feat};
 }
 
+// The kernels' reciprocal of x from the estimate r (see vrcp_refine in kernels.h), exposed so a
+// test can feed it estimates at the hardware's error bound: the result must not depend on which
+// vendor's estimate the CPU returns.
+torch::Tensor reciprocal(const torch::Tensor& x, const torch::Tensor& estimate) {
+  check_cpu_f32(x, "x");
+  check_cpu_f32(estimate, "estimate");
+  TORCH_CHECK(x.dim() == 1 && estimate.sizes() == x.sizes(), "x and estimate: equal 1-D shapes");
+  auto xc = x.contiguous(), rc = estimate.contiguous();
+  auto out = torch::empty_like(xc);
+  variant().rcp(xc.data_ptr<float>(), rc.data_ptr<float>(), out.data_ptr<float>(), xc.numel());
+  return out;
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "Blend projected Gaussians (forward)");
   m.def("backward", &backward, "Gradients w.r.t. the projected Gaussians");
-  m.def("variant", &variant_name, "Kernel instruction-set variant chosen for this CPU");
+  m.def("variant", &variant_name, "Kernel instruction-set variant in use");
+  m.def("available_variants", &available_variants, "Kernel variants this CPU can run");
+  m.def("set_variant", &set_variant, "Use the named kernel variant; returns the previous one");
+  m.def("reciprocal", &reciprocal, "The kernels' 1/x from the estimate r (tests)");
 }

@@ -1,0 +1,34 @@
+"""The rasterizer kernel variant as a test parameter.
+
+The native rasterizer has one kernel source compiled for two instruction sets (AVX2, the
+baseline every x86-64-v3 CPU runs, and AVX-512). Both variants are the same build on every
+machine, so a test run on an AVX-512 CPU can exercise the AVX2 kernels in-process exactly as an
+AVX2-only CPU runs them (except for the CPU's own reciprocal estimate, which
+``test_reciprocal.py`` covers for any vendor). ``raster_isa`` runs a test once per variant this
+CPU can execute; the AVX-512 case is skipped, by name, where the CPU lacks it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from sparsesplat.engine.raster.build import load_extension
+
+ISAS = ("avx2", "avx512")
+"""The kernel variants of the native rasterizer."""
+
+
+@pytest.fixture(params=ISAS)
+def raster_isa(request: pytest.FixtureRequest) -> Iterator[str]:
+    """Select the kernel variant ``request.param`` for the test, then restore the previous."""
+    ext = load_extension()
+    name = str(request.param)
+    if name not in ext.available_variants():
+        pytest.skip(f"this CPU cannot run the {name} kernels")
+    previous = ext.set_variant(name)
+    try:
+        yield name
+    finally:
+        ext.set_variant(previous)
