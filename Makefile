@@ -20,7 +20,10 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -c 'import torch; assert torch.__version__.startswith("2.13.0"), torch.__version__'
 	touch $@
 
+# The native CPU kernels are compiled here, during set-up (minutes, once per install or
+# update; a cached build only loads), so the first job does not wait for the compiler.
 run: venv
+	$(VENV)/bin/sparsesplat build
 	$(VENV)/bin/sparsesplat serve
 
 lint: venv

@@ -16,6 +16,11 @@ class Health(BaseModel):
     """Configured queue backend."""
     device: str
     """Configured compute device."""
+    kernels: str | None = None
+    """The native CPU kernels' build on this machine: ``building``, ``ready`` or ``failed``;
+    None when this server has no local build (GPU or remote workers)."""
+    kernels_detail: str | None = None
+    """One line on the build: seconds so far, the variants (AVX2/AVX-512) or the error."""
 
 
 class ErrorBody(BaseModel):

@@ -58,6 +58,11 @@ COMMANDS: dict[str, Command] = {
         "train a scene locally (preset chosen from the scene; --help lists presets and priors)",
         "engine",
     ),
+    "build": Command(
+        "sparsesplat.engine.commands.build",
+        "compile the native CPU kernels now (once after install or update; serve does it too)",
+        "engine",
+    ),
     "cameras": Command(
         "sparsesplat.engine.commands.cameras",
         "estimate the cameras of photos without poses (writes cameras.json; sfm extra)",

@@ -62,7 +62,9 @@ def run_celery_node(settings: Settings, concurrency: int = 1) -> int:
     checkpoints and goes back to the queue)."""
     from sparsesplat.api.store.broker import TRAIN_QUEUE
     from sparsesplat.worker.celery_app import app
+    from sparsesplat.worker.kernels import prepare_kernels
 
+    prepare_kernels(settings)  # before the node consumes: no task waits on the compiler
     parent = os.getppid()
 
     def watch_parent() -> None:  # the supervisor died: warm shutdown, do not linger as an orphan

@@ -34,6 +34,7 @@ from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.encode import DEPTH16_UNITS_PER_SCENE_UNIT, encode
+from sparsesplat.worker.kernels import prepare_kernels
 
 log = logging.getLogger("sparsesplat.render")
 
@@ -217,6 +218,7 @@ def serve_renders(settings: Settings, host: str = "127.0.0.1", port: int = 0) ->
 
     assert settings.database_url is not None
     torch.set_num_threads(settings.render_threads)
+    prepare_kernels(settings)  # before registering: no render request waits on the compiler
     device = settings.device.value if settings.device.value != "auto" else (
         "cuda" if torch.cuda.is_available() else "cpu"
     )  # fmt: skip

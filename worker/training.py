@@ -23,6 +23,7 @@ from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.kernels import prepare_kernels
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -67,6 +68,8 @@ class TrainingWorker:
     def run(self, max_jobs: int | None = None) -> int:
         """Serve jobs until stopped (or ``max_jobs`` were run); returns how many ran."""
         self._prepare_process()
+        # No claim before the kernels are built: a job claimed now would wait on the compiler.
+        prepare_kernels(self.settings)
         self.registry.register(self.worker_id, "train")
         log.info("training worker ready", extra={"worker": self.worker_id})
         done = 0

@@ -86,29 +86,21 @@ def check_device(device: str) -> str:
 
 def prepare_native(device: str, color: bool = True, training: bool = False) -> None:
     """Load (building on first use) the native CPU extensions before the work starts, saying
-    on stderr what is happening when it takes a while (the first build takes ~30 s).
+    on stderr what is happening when it takes a while (a first build takes minutes).
     ``training`` adds the fused photometric loss, which only training uses."""
     if not device.startswith("cpu"):
         return
-    from sparsesplat.engine.raster.build import load_extension, load_projection_extension
+    from sparsesplat.engine.kernels import load_kernels
 
-    loaders = [load_extension, load_projection_extension]
-    if color:
-        from sparsesplat.engine.color.build import load_extension as load_hash_grid
-
-        loaders.append(load_hash_grid)
-    if training:
-        from sparsesplat.engine.photometric.build import load_extension as load_photometric
-
-        loaders.append(load_photometric)
     done = threading.Event()
     where = os.environ.get("TORCH_EXTENSIONS_DIR") or "~/.cache/torch_extensions"
 
     def notice() -> None:
         if not done.wait(NATIVE_NOTICE_AFTER_S):
             print(
-                "sparsesplat: building the native CPU extensions (rasterizer, hash grid): "
-                f"once after install or update, about half a minute; cached under {where}",
+                "sparsesplat: building the native CPU extensions: once after install or "
+                f"update, a few minutes on 2 cores (`sparsesplat build` does it ahead); "
+                f"cached under {where}",
                 file=sys.stderr,
                 flush=True,
             )
@@ -117,8 +109,7 @@ def prepare_native(device: str, color: bool = True, training: bool = False) -> N
     thread = threading.Thread(target=notice, daemon=True)
     thread.start()
     try:
-        for load in loaders:
-            load()
+        load_kernels(color=color, training=training)
     finally:
         done.set()
         thread.join()

@@ -6,6 +6,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
 from sparsesplat import __version__
+from sparsesplat.api.kernel_status import STATUS_FILE, KernelState, read_status
 from sparsesplat.api.schemas import Health, Readiness
 from sparsesplat.server.deps import ServiceDep
 
@@ -14,9 +15,17 @@ router = APIRouter(tags=["service"])
 
 @router.get("/healthz", response_model=Health)
 async def healthz(service: ServiceDep) -> Health:
-    """Liveness: answers as soon as the process serves HTTP (touches nothing else)."""
+    """Liveness: answers as soon as the process serves HTTP (touches no database), with the
+    state of the native kernels' build (a small file in the data folder)."""
     settings = service.settings
-    return Health(version=__version__, queue=settings.queue.value, device=settings.device.value)
+    kernels = read_status(settings.data_dir / STATUS_FILE)
+    return Health(
+        version=__version__,
+        queue=settings.queue.value,
+        device=settings.device.value,
+        kernels=None if kernels is None else kernels.state.value,
+        kernels_detail=None if kernels is None else kernels.summary(),
+    )
 
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": Readiness}})
@@ -31,6 +40,9 @@ def readyz(service: ServiceDep) -> Response:
     except Exception as exc:
         database = False
         problems.append(f"database unreachable: {type(exc).__name__}")
+    kernels = read_status(service.settings.data_dir / STATUS_FILE)
+    if kernels is not None and kernels.state != KernelState.ready:
+        problems.append(kernels.summary())  # workers take no work before the build ends
     for kind in ("train", "render"):
         if database and workers[kind] == 0:
             problems.append(f"no {kind} worker has sent a heartbeat recently")

@@ -19,17 +19,19 @@ ALLOWED: dict[str, set[str]] = {
     "worker": {"worker", "api", "engine"},
     "engine": {"engine", "api"},
 }
-# The engine may import four light parts of api, each shared with the torch-free SDK so that
+# The engine may import five light parts of api, each shared with the torch-free SDK so that
 # one definition serves both: the pure-pydantic camera schemas (one schema validates
 # cameras.json and render cameras everywhere), the render schemas (render modes, live-view
-# frames), the scene-format readers (file layouts, splits, pose conventions; the engine wraps
-# them into torch Scenes), and the shared names. Settings, logging, job and store modules stay
-# out of the engine. Each entry covers the module or package and everything below it.
+# frames), the native kernels' build status file (written by the engine's build, read by the
+# torch-free server), the scene-format readers (file layouts, splits, pose conventions; the
+# engine wraps them into torch Scenes), and the shared names. Settings, logging, job and store
+# modules stay out of the engine. Each entry covers the module or package and everything below it.
 ENGINE_MAY_IMPORT_FROM_API = {
     "sparsesplat.api.cameras",
     "sparsesplat.api.scenes",
     "sparsesplat.api.names",
     "sparsesplat.api.renders",
+    "sparsesplat.api.kernel_status",
 }
 # What those api modules may import besides the standard library (NumPy only inside the
 # functions that need it: the base SDK install, which has no NumPy, reads the JSON formats),
@@ -40,6 +42,7 @@ LIGHT_DEPENDENCIES = {
     "sparsesplat.api.scenes": {"numpy"},
     "sparsesplat.api.names": set(),
     "sparsesplat.api.renders": {"pydantic"},
+    "sparsesplat.api.kernel_status": {"pydantic"},
 }
 # Modules a package loads by name string (importlib.import_module / __import__) that cross the
 # layering on purpose: the ``sparsesplat render`` command renders a local checkpoint through

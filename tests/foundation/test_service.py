@@ -72,7 +72,22 @@ def test_healthz_answers_200(service: str) -> None:
     response = httpx.get(f"{service}/healthz")
     assert response.status_code == 200
     body = response.json()
+    kernels = {"kernels": body.pop("kernels"), "detail": body.pop("kernels_detail")}
     assert body == {"status": "ok", "version": __version__, "queue": "local", "device": "cpu"}
+    # The workers build (here: load, cached) the native kernels as they start; before the first
+    # worker has got that far there is no status yet.
+    assert kernels["kernels"] in (None, "building", "ready"), kernels
+
+
+def test_healthz_says_when_the_kernels_are_ready(service: str) -> None:
+    """The workers' start-up build ends in "ready" with each kernel's instruction set."""
+    deadline = time.monotonic() + 600
+    while (body := httpx.get(f"{service}/healthz").json())["kernels"] in (None, "building"):
+        assert time.monotonic() < deadline, body
+        time.sleep(0.5)
+    assert body["kernels"] == "ready", body
+    assert body["kernels_detail"].startswith("native CPU kernels ready: "), body
+    assert "rasterizer avx" in body["kernels_detail"], body
 
 
 def test_sdk_twins_agree(service: str) -> None:
