@@ -399,3 +399,106 @@ def test_live_view_frame_rate_at_504x378(
     assert stats["shown"] > 0, "the live view showed no frame"
     console.assert_clean()
     context.close()
+
+
+FLOWER = (
+    Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nerf_llff_data" / "flower"
+)
+
+
+@pytest.fixture(scope="module")
+def forward_facing_job(service: LiveService) -> str:
+    """flower's 3 training views (and one held-out) at 126x94, trained for 60 iterations: a
+    forward-facing capture, whose orbit the viewer keeps inside the cameras' cone."""
+    from sparsesplat.client import Client
+
+    if not FLOWER.is_dir():
+        pytest.skip(f"shared scene missing: {FLOWER}")
+    with Client(service.url) as client:
+        handle = client.submit_folder(FLOWER, {"iterations": 60}, test_views=1, downscale=4)
+        job_id = handle.id
+    deadline = time.monotonic() + 600
+    while (state := httpx.get(f"{service.url}/v1/jobs/{job_id}").json()["state"]) not in (
+        "succeeded", "failed", "cancelled"
+    ):  # fmt: skip
+        assert time.monotonic() < deadline, f"flower job still {state}"
+        time.sleep(0.5)
+    assert state == "succeeded", httpx.get(f"{service.url}/v1/jobs/{job_id}").json()
+    return job_id
+
+
+def _content(frame: bytes) -> float:
+    """Share of a frame's pixels that are not its background: pixels further than 24 levels (in
+    any channel) from the most common colour. A view that has left the scene is one colour."""
+    rgb = pixels(frame)[..., :3].astype(np.int32)
+    quantised = (rgb // 8).reshape(-1, 3)
+    values, counts = np.unique(quantised, axis=0, return_counts=True)
+    mode = values[counts.argmax()] * 8 + 4
+    return float((np.abs(rgb - mode).max(axis=-1) > 24).mean())
+
+
+def _live_frame_at_current_pose(page: Any) -> bytes:
+    """Wait for the live view's frame of the pose last sent, and return it."""
+    page.wait_for_function(
+        "() => { const l = window.sparsesplat.view.live;"
+        " return l && l.lastFrame && l.lastFrame.header.t === l.lastSent; }"
+    )
+    return _live_frame_bytes(page)
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("scene", ["forward-facing flower", "mic around the object"])
+def test_viewer_stays_on_the_scene_across_full_canvas_drags(
+    browser: Any, service: LiveService, request: pytest.FixtureRequest, scene: str,
+    artifacts: Path,
+) -> None:  # fmt: skip
+    """From each training camera, a drag across the whole canvas (left to right, then top to
+    bottom) still shows the scene in the live server view: a forward-facing capture's orbit
+    stays in the cone its cameras span (it used to turn black after 200 px), a capture around
+    the object orbits freely. Ticking "free orbit" lifts the limit."""
+    forward = scene.startswith("forward")
+    job_id = request.getfixturevalue("forward_facing_job" if forward else "trained_job")
+    job_id = job_id if isinstance(job_id, str) else job_id.id
+    context, page, console = new_page(browser, service.url, viewport=SMALL_VIEWPORT)
+    page.goto(f"/#/jobs/{job_id}/viewer")
+    page.wait_for_selector("#viewer-canvas[data-ready='1']")
+    assert page.is_checked("#viewer-live"), "software WebGL: the live view is the default"
+    cone = page.evaluate("() => window.sparsesplat.view.cone")
+    assert (cone is not None) == forward, f"{scene}: orbit cone {cone}"
+    assert page.locator("#viewer-free-orbit").is_visible() == forward
+    box = page.locator("#viewer-canvas").bounding_box()
+    assert box is not None
+    left, top, w, h = box["x"], box["y"], box["width"], box["height"]
+    cameras = wire_cameras(service.url, job_id)
+    training = [i for i, c in enumerate(cameras) if c["split"] == "train"]
+    for index in training:
+        for name, start, end in (
+            ("left to right", (left + 3, top + h / 2), (left + w - 3, top + h / 2)),
+            ("top to bottom", (left + w / 2, top + 3), (left + w / 2, top + h - 3)),
+        ):
+            page.click(f"#viewer-cameras button[data-index='{index}']")
+            pinned = _content(_live_frame_at_current_pose(page))
+            assert pinned > 0.05, f"{scene}: camera {index} shows almost nothing ({pinned:.2f})"
+            page.mouse.move(*start)
+            page.mouse.down()
+            page.mouse.move(*end, steps=20)
+            page.mouse.up()
+            frame = _live_frame_at_current_pose(page)
+            after = _content(frame)
+            if after < 0.3 * pinned:
+                (artifacts / f"viewer-drag-{job_id}-{index}.jpg").write_bytes(frame)
+            assert after >= 0.3 * pinned, (
+                f"{scene}: a drag {name} from camera {index} left the scene: {after:.2f} of the "
+                f"frame shows it, against {pinned:.2f} at the camera"
+            )
+    if forward:  # the way out: the limit is lifted, and restored
+        page.check("#viewer-free-orbit")
+        free = page.evaluate("() => window.sparsesplat.view.controls.minAzimuthAngle")
+        assert free is None or free == -math.inf  # -Infinity arrives as None over JSON
+        page.uncheck("#viewer-free-orbit")
+        assert (
+            page.evaluate("() => window.sparsesplat.view.controls.minAzimuthAngle")
+            == cone["azimuth"][0]
+        )
+    console.assert_clean()
+    context.close()

@@ -145,3 +145,54 @@ function solve3(A, b) {
   const d = det(A);
   return [0, 1, 2].map((k) => det(A.map((row, i) => row.map((v, j) => (j === k ? b[i] : v)))) / d);
 }
+
+/** Largest angle (radians) between a camera's axis and the mean axis for a capture to count as
+ * forward-facing: LLFF-style captures stay within a few degrees; inward orbits spread wide. */
+export const FORWARD_FACING_SPREAD = (25 * Math.PI) / 180;
+/** Smallest margin (radians) the orbit may go beyond the captured cone on each side. */
+export const CONE_MARGIN = (10 * Math.PI) / 180;
+
+/**
+ * Whether the cameras face one way (an LLFF-style capture): every axis within
+ * FORWARD_FACING_SPREAD of their mean. Such a capture has nothing to show far outside the cone
+ * the cameras span (a drag of the full canvas used to turn the view black); a capture around
+ * the object may be orbited freely.
+ */
+export function isForwardFacing(cameras) {
+  const axes = cameras.map(centreAndForward);
+  const mean = normalise([0, 1, 2].map((k) => axes.reduce((s, a) => s + a.forward[k], 0)));
+  return axes.every((a) => Math.acos(Math.min(1, Math.max(-1, dot(a.forward, mean)))) <= FORWARD_FACING_SPREAD);
+}
+
+/**
+ * The orbit a forward-facing capture allows, from the cameras' offsets to the orbit target
+ * already in the orbit frame of three.js's OrbitControls (up = +y; azimuth atan2(x, z), polar
+ * acos(y / r)): the cameras' azimuth and polar ranges, each widened by half its span (at least
+ * CONE_MARGIN) on each side.
+ */
+export function coneRanges(offsets) {
+  const theta = offsets.map((o) => Math.atan2(o[0], o[2]));
+  const phi = offsets.map((o) => Math.acos(Math.min(1, Math.max(-1, o[1] / Math.hypot(...o)))));
+  // Azimuths relative to their circular mean, so a cone across +-pi stays one interval.
+  const centre = Math.atan2(theta.reduce((s, t) => s + Math.sin(t), 0), theta.reduce((s, t) => s + Math.cos(t), 0));
+  const rel = theta.map((t) => Math.atan2(Math.sin(t - centre), Math.cos(t - centre)));
+  const widen = (lo, hi) => {
+    const margin = Math.max(CONE_MARGIN, 0.5 * (hi - lo));
+    return [lo - margin, hi + margin];
+  };
+  const [a0, a1] = widen(Math.min(...rel), Math.max(...rel));
+  const [p0, p1] = widen(Math.min(...phi), Math.max(...phi));
+  return {
+    azimuth: [centre + a0, centre + a1],
+    polar: [Math.max(0.01, p0), Math.min(Math.PI - 0.01, p1)],
+  };
+}
+
+function dot(a, b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+function normalise(v) {
+  const n = Math.hypot(...v) || 1;
+  return v.map((x) => x / n);
+}

@@ -9,7 +9,7 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { SparkRenderer, SplatMesh } from "@sparkjsdev/spark";
 import { download, request } from "./api.js";
-import { centreAndForward, openglCameraToWorld, orbitCentre, pinhole, placeThreeCamera, threeCameraToPinhole } from "./cameras.js";
+import { centreAndForward, coneRanges, isForwardFacing, openglCameraToWorld, orbitCentre, pinhole, placeThreeCamera, threeCameraToPinhole } from "./cameras.js";
 import { renderUrl } from "./job.js";
 import { LiveView } from "./live.js";
 import { el, fmtBytes, toast } from "./ui.js";
@@ -87,6 +87,13 @@ export function mount(container, { jobId }) {
   const cameraList = el("div.camera-list#viewer-cameras");
   const renderButton = el("button#viewer-render", { type: "button", disabled: true }, "Render this view on the server");
   const spin = el("input#viewer-spin", { type: "checkbox" });
+  const freeOrbit = el("input#viewer-free-orbit", { type: "checkbox" });
+  const freeOrbitLabel = el(
+    "label.check",
+    { hidden: true, title: "A forward-facing capture shows nothing far outside the cone its cameras span; the orbit stays inside it unless this is ticked." },
+    freeOrbit,
+    " free orbit (leave the captured views)",
+  );
   const liveToggle = el("input#viewer-live", { type: "checkbox" });
   const showFrusta = el("input#viewer-frusta", { type: "checkbox", checked: true });
   const detail = el(
@@ -117,6 +124,7 @@ export function mount(container, { jobId }) {
         cameraList,
         el("label.check", {}, showFrusta, " show camera frusta"),
         el("label.check", {}, spin, " auto-rotate"),
+        freeOrbitLabel,
         el("label.check", { title: "The server renders the view as the camera moves (neural colour, exact); the browser draws nothing. On by default with software WebGL." }, liveToggle, " live server view"),
         el("label", {}, "Background ", background),
         el("label", { title: "Fewer splats keep software WebGL interactive (Spark's level of detail); 'Render this view on the server' is always exact." }, "Draw ", detail),
@@ -156,6 +164,7 @@ export function mount(container, { jobId }) {
   let job = null;
   let cameras = [];
   let orbit = { centre: [0, 0, 0], scale: 1, up: [0, 1, 0] };
+  let cone = null; // a forward-facing capture's orbit ranges (coneRanges), null: free orbit
   let pinned = null; // the wire camera jumped to, until the user moves
   let size = { width: 640, height: 480 };
   let aspect = 4 / 3;
@@ -266,6 +275,25 @@ export function mount(container, { jobId }) {
     dirty = true;
   }
 
+  /** Keep a forward-facing capture's orbit inside its cone (unless "free orbit" is ticked),
+   * with a speed at which a drag across the whole canvas spans the cone; else the defaults. */
+  function applyOrbitLimits() {
+    const limited = cone !== null && !freeOrbit.checked;
+    controls.minAzimuthAngle = limited ? cone.azimuth[0] : -Infinity;
+    controls.maxAzimuthAngle = limited ? cone.azimuth[1] : Infinity;
+    controls.minPolarAngle = limited ? cone.polar[0] : 0;
+    controls.maxPolarAngle = limited ? cone.polar[1] : Math.PI;
+    // OrbitControls turns by 2 pi rotateSpeed per canvas height dragged, in both directions.
+    const across = (2 * Math.PI * size.width) / size.height;
+    controls.rotateSpeed = limited
+      ? Math.min(1, (cone.azimuth[1] - cone.azimuth[0]) / across, (cone.polar[1] - cone.polar[0]) / (2 * Math.PI))
+      : 1;
+    if (limited) spin.checked = controls.autoRotate = false; // auto-rotation would leave the cone
+    spin.disabled = limited;
+    controls.update();
+    dirty = true;
+  }
+
   function describePose() {
     pose.textContent = pinned
       ? `At camera #${pinned.index} (${pinned.split}): the server render uses it exactly (${pinned.width}×${pinned.height}).`
@@ -357,7 +385,9 @@ export function mount(container, { jobId }) {
     }
     if (unmounted) return;
     cameras = model.cameras.map((c, index) => ({ ...c, index }));
-    orbit = orbitCentre(cameras.filter((c) => c.split !== "test").length >= 2 ? cameras.filter((c) => c.split !== "test") : cameras);
+    const training = cameras.filter((c) => c.split !== "test");
+    const orbitCameras = training.length >= 2 ? training : cameras;
+    orbit = orbitCentre(orbitCameras);
     aspect = cameras[0].width / cameras[0].height;
     camera.near = orbit.scale * 0.01;
     camera.far = orbit.scale * 100;
@@ -366,6 +396,22 @@ export function mount(container, { jobId }) {
     controls = new OrbitControls(camera, canvas);
     controls.target.set(...orbit.centre);
     controls.autoRotateSpeed = 4;
+    if (isForwardFacing(orbitCameras)) {
+      // Each training camera's heading reversed, in the controls' frame (up = +y): its
+      // direction from any target on its own axis (where jumpTo puts the target), so every
+      // training view lies inside the cone, and the orbit keeps to the directions the
+      // capture looked from (the orbit centre of near-parallel cameras is poorly placed, and
+      // directions from it are not).
+      const toOrbitFrame = new THREE.Quaternion().setFromUnitVectors(camera.up.clone().normalize(), new THREE.Vector3(0, 1, 0));
+      const offsets = orbitCameras.map((c) => {
+        const back = new THREE.Vector3(...centreAndForward(c).forward).negate().applyQuaternion(toOrbitFrame);
+        return [back.x, back.y, back.z];
+      });
+      cone = coneRanges(offsets);
+      freeOrbitLabel.hidden = false;
+    }
+    freeOrbit.addEventListener("change", applyOrbitLimits);
+    applyOrbitLimits();
     controls.addEventListener("start", () => {
       interacting = true;
       pinned = null;
@@ -497,6 +543,9 @@ export function mount(container, { jobId }) {
     },
     get cameras() {
       return cameras;
+    },
+    get cone() {
+      return cone;
     },
     get live() {
       return live;
