@@ -1,0 +1,61 @@
+"""What a matcher run is asked to do: the model and its few knobs (part of the cache key)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from sparsesplat.engine.match.errors import MatchError
+
+METHODS = ("xfeat-lighterglue", "xfeat-mnn", "xfeat-semidense", "disk-lightglue")
+"""The matchers: XFeat sparse keypoints matched by LighterGlue or by mutual nearest
+neighbours, XFeat's semi-dense matcher (coarse mutual nearest neighbours refined to sub-pixel
+in the first photo of a pair), and DISK keypoints with LightGlue."""
+
+
+@dataclass(frozen=True)
+class MatchSettings:
+    """One matcher configuration."""
+
+    method: str = "xfeat-lighterglue"
+    """One of :data:`METHODS`."""
+    max_keypoints: int = 4096
+    """Keypoints kept per photo (the strongest); for the semi-dense matcher, the coarse
+    features per photo."""
+    max_side: int = 1024
+    """Photos with a longer side are shrunk to it before matching (coordinates are returned
+    in the photo's own pixels); 0 keeps every photo as it is."""
+    min_confidence: float = 0.1
+    """LightGlue's match threshold (matches scoring below it are dropped)."""
+    min_cosine: float = 0.82
+    """Mutual-nearest-neighbour matching: smallest descriptor cosine similarity kept."""
+    min_texture: float = 0.01
+    """A keypoint whose 9x9 neighbourhood has a grey-level standard deviation below this
+    (on a 0-1 scale) is dropped: a flat patch, e.g. the white or black backdrop of an object
+    capture, carries no evidence however confidently it was matched."""
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise MatchError(f"unknown matcher {self.method!r}: choose one of {', '.join(METHODS)}")
+        if self.max_keypoints < 8:
+            raise MatchError(f"max_keypoints must be at least 8, got {self.max_keypoints}")
+        if self.max_side < 0 or 0 < self.max_side < 32:
+            raise MatchError(f"max_side must be 0 (no limit) or at least 32, got {self.max_side}")
+        if not 0.0 <= self.min_confidence < 1.0:
+            raise MatchError(f"min_confidence must be in [0, 1), got {self.min_confidence}")
+        if not -1.0 <= self.min_cosine < 1.0:
+            raise MatchError(f"min_cosine must be in [-1, 1), got {self.min_cosine}")
+        if self.min_texture < 0.0:
+            raise MatchError(f"min_texture must be >= 0, got {self.min_texture}")
+
+    def as_json(self) -> str:
+        """The settings as canonical JSON (sorted keys): stored with a result, hashed into
+        the cache key."""
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> MatchSettings:
+        """The settings stored by :meth:`as_json`."""
+        data: dict[str, Any] = json.loads(text)
+        return cls(**data)
