@@ -27,7 +27,13 @@ from typing import Any
 import numpy as np
 
 from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
-from sparsesplat.engine.bench.matchers import DEFAULT_SCENES, SCENES, load_views, sift_matches
+from sparsesplat.engine.bench.matchers import (
+    DEFAULT_SCENES,
+    SCENES,
+    load_views,
+    parse_method,
+    sift_matches,
+)
 from sparsesplat.engine.bench.quality import default_data_root
 
 COLUMNS = ["scene", "method", "tracks", "conflicts", "behind", "error", "angle", "kept",
@@ -91,13 +97,13 @@ def measure(
     name: str, folder: Path, method: str, cache: Path, settings: Any, object_masks: bool
 ) -> dict[str, Any]:
     """One scene, one matcher: the figures of the module docstring."""
-    from sparsesplat.engine.match import MatchSettings, cached_match, matched_start
+    from sparsesplat.engine.match import cached_match, matched_start
 
     scene, photos, masks = load_views(folder, object_masks)
     if method == "sift":
         matches, _ = sift_matches(photos, 2)
     else:
-        matches, _ = cached_match(photos, MatchSettings(method=method), cache, masks)
+        matches, _ = cached_match(photos, parse_method(method), cache, masks)
     t0 = time.perf_counter()
     start = matched_start(matches, [v.camera for v in scene.train], photos, settings)
     seconds = time.perf_counter() - t0

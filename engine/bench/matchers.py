@@ -129,13 +129,27 @@ def sift_matches(photos: list[np.ndarray], threads: int) -> tuple[Any, dict[str,
     return result, raw
 
 
+def parse_method(spec: str) -> Any:
+    """``METHOD[:key=value,...]`` (e.g. ``xfeat-lighterglue:max_keypoints=2048``) as
+    MatchSettings."""
+    from sparsesplat.engine.match import MatchSettings
+
+    method, _, rest = spec.partition(":")
+    options: dict[str, Any] = {}
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition("=")
+        options[key] = float(value) if "." in value else int(value)
+    return MatchSettings(method=method, **options)
+
+
 def measure(
     scene_name: str, folder: Path, method: str, threads: int, px: float, object_masks: bool
 ) -> dict[str, Any]:
-    """One scene, one matcher, one thread count: per pair and summed figures."""
+    """One scene, one matcher (``sift`` or a :func:`parse_method` spec), one thread count:
+    per pair and summed figures."""
     import torch
 
-    from sparsesplat.engine.match import MatchSettings, match_images
+    from sparsesplat.engine.match import match_images
     from sparsesplat.engine.match.geometry import PinholeArrays, epipolar_distances, fundamental
 
     torch.set_num_threads(threads)
@@ -145,8 +159,9 @@ def measure(
     if method == "sift":
         result, raw = sift_matches(photos, threads)
     else:
-        match_images(photos[:2], MatchSettings(method=method), masks[:2])  # load the networks
-        result = match_images(photos, MatchSettings(method=method), masks)
+        settings = parse_method(method)
+        match_images(photos[:2], settings, masks[:2])  # load the networks
+        result = match_images(photos, settings, masks)
     n = len(photos)
     pairs: list[dict[str, Any]] = []
     for i in range(n):

@@ -45,7 +45,9 @@ def _bound(points: np.ndarray, cams: list[PinholeArrays]) -> np.ndarray:
     cos = np.einsum("pai,pbi->pab", unit, unit).reshape(len(points), -1).min(axis=1)
     sin = np.sin(np.arccos(np.clip(cos, -1, 1)))
     angular = U32 * max(WIDTH, HEIGHT) / FOCAL
-    return 4 * math.sqrt(2) * dist.max(axis=1) * angular / sin + U32 * np.linalg.norm(points, axis=1)
+    return 4 * math.sqrt(2) * dist.max(axis=1) * angular / sin + U32 * np.linalg.norm(
+        points, axis=1
+    )
 
 
 @pytest.mark.parametrize("views", [2, 3, 5])
