@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -43,7 +44,7 @@ SCENES = {
 DEFAULT_SCENES = ["flower", "horns", "mic", "dtu_scan24", "beer_can"]
 """Scenes measured without ``--scenes``."""
 COLUMNS = ["scene", "method", "threads", "pairs", "matches", "inlier_frac", "inliers",
-           "min_inliers", "s_per_pair", "seconds"]  # fmt: skip
+           "min_inliers", "s_per_pair", "seconds", "load"]  # fmt: skip
 
 
 def load_views(folder: Path, object_masks: bool) -> tuple[Any, list[np.ndarray], list[Any]]:
@@ -187,6 +188,8 @@ def measure(
         "min_inliers": min(p["inliers"] for p in pairs),
         "seconds": seconds,
         "s_per_pair": seconds / len(pairs),
+        # Other work on the machine slows every figure: the 1-minute load beside each row.
+        "load": round(os.getloadavg()[0], 2),
         "per_pair": pairs,
     }
 

@@ -63,25 +63,30 @@ def texture_map(rgb: np.ndarray, window: int = TEXTURE_WINDOW) -> np.ndarray:
 def prepare(
     rgb: np.ndarray,
     mask: np.ndarray | None,
-    max_side: int,
+    sides: tuple[int, int],
     stride: int,
     min_texture: float,
     index: int,
 ) -> Prepared:
-    """Shrink ``rgb`` (H, W, 3 float) so its longer side is at most ``max_side`` (0: as it
-    is), pad it to a multiple of ``stride`` and mark the usable pixels: inside ``mask`` (when
-    given) and textured (grey-level spread at least ``min_texture``)."""
+    """Resize ``rgb`` (H, W, 3 float) so its longer side lies within ``sides`` = (min_side,
+    max_side) (0: no bound), pad it to a multiple of ``stride`` and mark the usable pixels:
+    inside ``mask`` (when given) and textured (grey-level spread at least ``min_texture``)."""
+    min_side, max_side = sides
     h, w = rgb.shape[:2]
     if min(h, w) < 16:
         raise MatchError(f"photo {index + 1}: {w}x{h} pixels is too small to match")
     if mask is not None and mask.shape != (h, w):
         raise MatchError(f"photo {index + 1}: mask is {mask.shape[::-1]}, the photo {w}x{h}")
     factor = min(1.0, max_side / max(h, w)) if max_side else 1.0
+    if min_side and max(h, w) < min_side:
+        factor = min_side / max(h, w)
     rw, rh = max(16, round(w * factor)), max(16, round(h * factor))
     x = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None]
     if (rw, rh) != (w, h):
         # Antialiased: a plain bilinear shrink aliases fine texture into false features.
-        x = F.interpolate(x, size=(rh, rw), mode="bilinear", align_corners=False, antialias=True)
+        x = F.interpolate(
+            x, size=(rh, rw), mode="bilinear", align_corners=False, antialias=factor < 1
+        ).clamp(0, 1)
     ph, pw = -rh % stride, -rw % stride
     if ph or pw:
         x = F.pad(x, (0, pw, 0, ph), mode="replicate")

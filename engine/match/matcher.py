@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -24,13 +25,16 @@ from sparsesplat.engine.match.settings import MatchSettings
 
 STRIDE = {"xfeat": 32, "disk": 16}
 """Side multiple each backbone needs (padding, never a resize, so pixel positions stay exact)."""
-SEMI_DENSE_BIAS = (2.6, 1.7)
-"""Pixels by which XFeat's semi-dense matcher reports its refined (first photo of a pair) and
-its coarse (second photo) positions up and to the left of where they are, beyond the half
-pixel of its pixel-index coordinates: measured by matching a photo against a 1.5x enlarged copy
-of itself, both ways round (LLFF flower and horns: refined 2.5-3.2, coarse 1.2-2.4; the bias
-mixes the two scales the matcher extracts at). Added back, so that both photos of a match use
-one convention (docs/experiments/2026-11-28-matchers.md)."""
+SEMI_DENSE_BIAS = (4.0, 2.9)
+"""XFeat's semi-dense positions are pixel indices at the scale a feature was extracted at (0.6
+or 1.3 of the photo): (refined, coarse) offsets, in pixels of that scale, from the reported
+position to the point the feature stands for (the half pixel of pixel-index coordinates
+included). Measured by matching photos against 1.5x enlarged copies of themselves, both ways
+round, and fitting the two offsets by least squares over the matches of both scales (crops of
+flower, horns and DTU scan24, about 5000 matches: 3.98 and 2.90, residual 1.1 px rms)
+(docs/experiments/2026-11-28-matchers.md)."""
+FINE_CONFIDENCE = 0.25
+"""XFeat's threshold on the refinement's peak probability (its own default)."""
 
 
 @dataclass
@@ -50,11 +54,11 @@ def _sparse(prep: Prepared, settings: MatchSettings) -> _Features:
     w, h = prep.resized
     with torch.inference_mode():
         if settings.method.startswith("xfeat"):
-            out = networks.xfeat().detectAndCompute(prep.tensor, top_k=settings.max_keypoints)[0]
+            out = networks.xfeat().detectAndCompute(prep.tensor, top_k=settings.keypoints)[0]
             xy, desc = out["keypoints"].float(), out["descriptors"].float()
         else:
             feats = networks.disk()(
-                prep.tensor, n=settings.max_keypoints, window_size=5, score_threshold=0.0
+                prep.tensor, n=settings.keypoints, window_size=5, score_threshold=0.0
             )[0]
             xy, desc = feats.keypoints.float(), feats.descriptors.float()
     inside = (xy[:, 0] < w) & (xy[:, 1] < h)  # not in the padding
@@ -105,17 +109,15 @@ def _semidense(
     model = networks.xfeat()
     t0 = time.perf_counter()
     with torch.inference_mode():
-        dense = [model.detectAndComputeDense(p.tensor, top_k=settings.max_keypoints) for p in preps]
+        dense = [model.detectAndComputeDense(p.tensor, top_k=settings.keypoints) for p in preps]
     t1 = time.perf_counter()
     points: list[list[np.ndarray]] = [[] for _ in preps]
     counts = [0] * len(preps)
     rows: dict[tuple[int, int], np.ndarray] = {}
     with torch.inference_mode():
         for i, j in pairs:
-            idx = model.batch_match(dense[i]["descriptors"], dense[j]["descriptors"])
-            out = model.refine_matches(dense[i], dense[j], matches=idx, batch_idx=0)
-            xi = to_photo(out[:, :2], preps[i], 0.5 + SEMI_DENSE_BIAS[0])
-            xj = to_photo(out[:, 2:], preps[j], 0.5 + SEMI_DENSE_BIAS[1])
+            net_i, net_j = _refined_pair(model, dense[i], dense[j])
+            xi, xj = to_photo(net_i, preps[i], 0.0), to_photo(net_j, preps[j], 0.0)
             keep = usable_at(xi, preps[i]) & usable_at(xj, preps[j])
             xi, xj = xi[keep], xj[keep]
             n = len(xi)
@@ -129,6 +131,23 @@ def _semidense(
     keypoints = [np.concatenate(p) if p else np.zeros((0, 2), np.float32) for p in points]
     keypoints, rows = _merge_duplicates(keypoints, rows)
     return keypoints, rows, t1 - t0, time.perf_counter() - t1
+
+
+def _refined_pair(model: Any, a: dict[str, Tensor], b: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+    """XFeat's semi-dense match of two photos' coarse features: mutual nearest neighbours,
+    then the sub-pixel offset of the match in ``a`` from XFeat's fine matcher; matches whose
+    refinement is unsure are dropped. Positions in the padded, resized photos (pixels), each
+    moved by :data:`SEMI_DENSE_BIAS` at its own extraction scale."""
+    idx0, idx1 = model.batch_match(a["descriptors"], b["descriptors"])[0]
+    fa, fb = a["descriptors"][0][idx0], b["descriptors"][0][idx1]
+    logits = model.net.fine_matcher(torch.cat([fa, fb], dim=-1))
+    confident = torch.softmax(logits * 3, dim=-1).max(dim=-1).values > FINE_CONFIDENCE
+    offsets = model.subpix_softmax2d(logits.view(-1, 8, 8))
+    inv_a = a["scales"][0][idx0][:, None]  # 1 / extraction scale
+    inv_b = b["scales"][0][idx1][:, None]
+    xa = a["keypoints"][0][idx0] + (offsets + SEMI_DENSE_BIAS[0]) * inv_a
+    xb = b["keypoints"][0][idx1] + SEMI_DENSE_BIAS[1] * inv_b
+    return xa[confident], xb[confident]
 
 
 def _merge_duplicates(
@@ -170,7 +189,7 @@ def match_images(
         prepare(
             as_float_rgb(p, i),
             None if masks is None else masks[i],
-            settings.max_side,
+            (settings.min_side, settings.max_side),
             stride,
             settings.min_texture,
             i,

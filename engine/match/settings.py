@@ -14,18 +14,34 @@ neighbours, XFeat's semi-dense matcher (coarse mutual nearest neighbours refined
 in the first photo of a pair), and DISK keypoints with LightGlue."""
 
 
+DEFAULT_KEYPOINTS = {
+    "xfeat-lighterglue": 2048,
+    "xfeat-mnn": 4096,
+    "xfeat-semidense": 4096,
+    "disk-lightglue": 2048,
+}
+"""Keypoints per photo when the settings leave it at 0. LightGlue's attention costs the square
+of the count: LighterGlue at 4096 keypoints took 7-13 s a pair on one thread against 0.9-1.5
+s at 2048 on LLFF (docs/experiments/2026-11-28-matchers.md); the others are linear."""
+
+
 @dataclass(frozen=True)
 class MatchSettings:
     """One matcher configuration."""
 
     method: str = "xfeat-lighterglue"
     """One of :data:`METHODS`."""
-    max_keypoints: int = 4096
+    max_keypoints: int = 0
     """Keypoints kept per photo (the strongest); for the semi-dense matcher, the coarse
-    features per photo."""
+    features per photo. 0: the method's default (:data:`DEFAULT_KEYPOINTS`)."""
     max_side: int = 1024
     """Photos with a longer side are shrunk to it before matching (coordinates are returned
     in the photo's own pixels); 0 keeps every photo as it is."""
+    min_side: int = 0
+    """Photos with a shorter longer side are enlarged to it before matching (0: never). An
+    object that fills a small part of a small photo gives XFeat few keypoints at its 1/8
+    feature resolution: NeRF-synthetic's mic at 400 px gave 4x more epipolar-consistent
+    matches enlarged to 800 px (docs/experiments/2026-11-28-matchers.md)."""
     min_confidence: float = 0.1
     """LightGlue's match threshold (matches scoring below it are dropped)."""
     min_cosine: float = 0.82
@@ -38,16 +54,25 @@ class MatchSettings:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise MatchError(f"unknown matcher {self.method!r}: choose one of {', '.join(METHODS)}")
-        if self.max_keypoints < 8:
-            raise MatchError(f"max_keypoints must be at least 8, got {self.max_keypoints}")
+        if self.max_keypoints != 0 and self.max_keypoints < 8:
+            raise MatchError(f"max_keypoints must be 0 (default) or >= 8, got {self.max_keypoints}")
         if self.max_side < 0 or 0 < self.max_side < 32:
             raise MatchError(f"max_side must be 0 (no limit) or at least 32, got {self.max_side}")
+        if self.min_side < 0 or (self.max_side and self.min_side > self.max_side):
+            raise MatchError(
+                f"min_side must be between 0 and max_side ({self.max_side}), got {self.min_side}"
+            )
         if not 0.0 <= self.min_confidence < 1.0:
             raise MatchError(f"min_confidence must be in [0, 1), got {self.min_confidence}")
         if not -1.0 <= self.min_cosine < 1.0:
             raise MatchError(f"min_cosine must be in [-1, 1), got {self.min_cosine}")
         if self.min_texture < 0.0:
             raise MatchError(f"min_texture must be >= 0, got {self.min_texture}")
+
+    @property
+    def keypoints(self) -> int:
+        """The keypoint count in effect (``max_keypoints`` or the method's default)."""
+        return self.max_keypoints or DEFAULT_KEYPOINTS[self.method]
 
     def as_json(self) -> str:
         """The settings as canonical JSON (sorted keys): stored with a result, hashed into
