@@ -60,8 +60,8 @@ def test_flower_pair_matches_agree_with_the_dataset_epipolar_geometry(
     xa, xb = result.pair(0, 1)
     da, db = epipolar_distances(fundamental(cams[0], cams[1]), xa, xb)
     inliers = (da <= 2) & (db <= 2)
-    # Measured (docs/experiments/2026-11-28-matchers.md): about 2000 matches, 84 % inliers.
-    assert not hit and len(xa) >= 1000 and inliers.mean() >= 0.75, (len(xa), inliers.mean())
+    # Measured (docs/experiments/2026-11-28-matchers.md): 887 matches, 86 % within 2 px.
+    assert not hit and len(xa) >= 600 and inliers.mean() >= 0.75, (len(xa), inliers.mean())
     again, hit = cached_match(photos, MatchSettings(), tmp_path)
     assert hit
     np.testing.assert_array_equal(again.pair(0, 1)[0], xa)
@@ -93,8 +93,9 @@ def test_object_on_white_keeps_background_keypoints_out(shared_data: Path) -> No
     photos, cams, views = _views(shared_data / "nerf_synthetic/mic", 8)
     pick = [2, 5]  # r_2 and r_93, the nearest two of the eight (16 degrees apart)
     alpha = [views[i].alpha.numpy() >= 0.5 for i in pick]
-    with_alpha = match_images([photos[i] for i in pick], MatchSettings(), alpha)
-    plain = match_images([photos[i] for i in pick], MatchSettings())
+    settings = MatchSettings(min_side=800)  # the object is small in 400-px photos
+    with_alpha = match_images([photos[i] for i in pick], settings, alpha)
+    plain = match_images([photos[i] for i in pick], settings)
     for k, i in enumerate(pick):
         # Within 4 px of the object: the flat white backdrop holds no keypoint even without
         # the alpha mask (the texture test); edge keypoints just outside it may stay.
@@ -108,7 +109,8 @@ def test_object_on_white_keeps_background_keypoints_out(shared_data: Path) -> No
         assert alpha[k][kp[:, 1].astype(int), kp[:, 0].astype(int)].all()
     xa, xb = with_alpha.pair(0, 1)
     da, db = epipolar_distances(fundamental(cams[pick[0]], cams[pick[1]]), xa, xb)
-    assert len(xa) >= 50 and ((da <= 2) & (db <= 2)).mean() >= 0.6
+    # Measured: 362 matches, 76 % within 2 px.
+    assert len(xa) >= 150 and ((da <= 2) & (db <= 2)).mean() >= 0.6, (len(xa), (da <= 2).mean())
 
 
 def test_without_the_extra_the_error_says_what_to_install() -> None:
