@@ -11,7 +11,8 @@ reprojection error and triangulation angle, and against the dataset:
   the fraction within 5 %;
 - object scenes (mic, DTU): the fraction of points inside the object's bounds (the unit cube
   for NeRF-synthetic, the unit sphere for DTU's normalised frame) and inside the object's
-  silhouette in every held-out view that frames it (alpha >= 0.5, DTU's masks).
+  silhouette, widened by :data:`SILHOUETTE_SLACK_PX` (the reprojection error allowed), in
+  every held-out view that frames it (alpha >= 0.5, DTU's masks).
 
     python -m sparsesplat.engine.bench.matched_start [--scenes ...] [--methods ...]
 """
@@ -32,6 +33,7 @@ from sparsesplat.engine.bench.matchers import (
     SCENES,
     load_views,
     parse_method,
+    report,
     sift_matches,
 )
 from sparsesplat.engine.bench.quality import default_data_root
@@ -39,6 +41,9 @@ from sparsesplat.engine.bench.quality import default_data_root
 COLUMNS = ["scene", "method", "tracks", "conflicts", "behind", "error", "angle", "kept",
            "err_med_px", "err_p90_px", "angle_med_deg", "views3", "depth_rel_med",
            "depth_within5", "inside_bounds", "inside_silhouettes", "tri_s"]  # fmt: skip
+SILHOUETTE_SLACK_PX = 2
+"""A point may project this far outside a held-out silhouette (pixels): the matched start
+keeps points that reproject within 2 px, and thin parts are a few pixels wide."""
 PLANE_SWEEP_CUT = 0.7
 """Plane-sweep confidence above which its depth is compared (the dense start's cut)."""
 
@@ -70,6 +75,9 @@ def _plane_sweep_check(scene: Any, start: Any, cache: Path) -> dict[str, float]:
 
 def _object_check(scene: Any, start: Any) -> dict[str, float]:
     """Fractions of points inside the bounds and inside every framing held-out silhouette."""
+    import torch
+    import torch.nn.functional as F
+
     from sparsesplat.engine.match.geometry import PinholeArrays, project
 
     pts = start.points.astype(np.float64)
@@ -84,6 +92,9 @@ def _object_check(scene: Any, start: Any) -> dict[str, float]:
             sil = view.mask.numpy().astype(bool)
         if sil is None:
             continue
+        k = 2 * SILHOUETTE_SLACK_PX + 1
+        grown = F.max_pool2d(torch.from_numpy(sil).float()[None, None], k, 1, k // 2)
+        sil = grown[0, 0].numpy() > 0
         uv, z = project(pts, PinholeArrays.of(view.camera))
         h, w = sil.shape
         ix, iy = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
@@ -104,6 +115,7 @@ def measure(
         matches, _ = sift_matches(photos, 2)
     else:
         matches, _ = cached_match(photos, parse_method(method), cache, masks)
+    settings_json = matches.settings.as_json() if method != "sift" else "sift"
     t0 = time.perf_counter()
     start = matched_start(matches, [v.camera for v in scene.train], photos, settings)
     seconds = time.perf_counter() - t0
@@ -112,6 +124,7 @@ def measure(
         "method": method + ("+masks" if object_masks else ""),
         **start.counts,
         "tri_s": seconds,
+        "settings": settings_json,
     }
     if len(start.points):
         row.update(
@@ -144,7 +157,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-angle", type=float, default=1.0, help="degrees")
     parser.add_argument("--object-masks", action="store_true", help="DTU: match on the object")
     parser.add_argument("--out", type=Path, default=None, help="JSON lines file")
+    parser.add_argument("--report", type=Path, nargs="*", help="print results as markdown")
     args = parser.parse_args(argv)
+    if args.report:
+        print(report(args.report, COLUMNS))
+        return 0
     torch.set_num_threads(args.threads)
     root = args.data or default_data_root()
     cache = results_dir() / "match-cache"

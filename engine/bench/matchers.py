@@ -157,12 +157,14 @@ def measure(
     scene, photos, masks = load_views(folder, object_masks)
     cams = [PinholeArrays.of(v.camera) for v in scene.train]
     raw: dict[str, int] = {}
+    settings_json = "sift"
     if method == "sift":
         result, raw = sift_matches(photos, threads)
     else:
         settings = parse_method(method)
         match_images(photos[:2], settings, masks[:2])  # load the networks
         result = match_images(photos, settings, masks)
+        settings_json = settings.as_json()
     n = len(photos)
     pairs: list[dict[str, Any]] = []
     for i in range(n):
@@ -190,6 +192,7 @@ def measure(
         "s_per_pair": seconds / len(pairs),
         # Other work on the machine slows every figure: the 1-minute load beside each row.
         "load": round(os.getloadavg()[0], 2),
+        "settings": settings_json,
         "per_pair": pairs,
     }
 
@@ -198,6 +201,30 @@ def _angle_deg(a: Any, b: Any) -> float:
     """Angle between two cameras' optical axes (degrees)."""
     za, zb = a.world_to_camera[2, :3], b.world_to_camera[2, :3]
     return float(np.degrees(np.arccos(np.clip(za @ zb, -1.0, 1.0))))
+
+
+def markdown(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    """Rows as a markdown table (floats to 3 significant digits)."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.1f}" if abs(v) >= 10 else f"{v:.3g}"
+        return "" if v is None else str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(cell(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def report(paths: list[Path], columns: list[str]) -> str:
+    """The rows of JSON-lines result files as one markdown table."""
+    rows = []
+    for path in paths:
+        for line in path.read_text().splitlines():
+            row = json.loads(line)
+            if "scene" in row:
+                rows.append(row)
+    return markdown(rows, columns)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -212,7 +239,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--px", type=float, default=2.0, help="epipolar distance (pixels)")
     parser.add_argument("--object-masks", action="store_true", help="DTU: match on the object")
     parser.add_argument("--out", type=Path, default=None, help="JSON lines file")
+    parser.add_argument("--report", type=Path, nargs="*", help="print results as markdown")
     args = parser.parse_args(argv)
+    if args.report:
+        print(report(args.report, COLUMNS))
+        return 0
     root = args.data or default_data_root()
     out = args.out or results_dir() / "matchers.jsonl"
     out.parent.mkdir(parents=True, exist_ok=True)

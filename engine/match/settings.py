@@ -37,11 +37,12 @@ class MatchSettings:
     max_side: int = 1024
     """Photos with a longer side are shrunk to it before matching (coordinates are returned
     in the photo's own pixels); 0 keeps every photo as it is."""
-    min_side: int = 0
-    """Photos with a shorter longer side are enlarged to it before matching (0: never). An
-    object that fills a small part of a small photo gives XFeat few keypoints at its 1/8
-    feature resolution: NeRF-synthetic's mic at 400 px gave 4x more epipolar-consistent
-    matches enlarged to 800 px (docs/experiments/2026-11-28-matchers.md)."""
+    min_side: int = 800
+    """Photos with a shorter longer side are enlarged to it before matching (0: never). XFeat
+    describes at 1/8 of the resolution, so small photos give it few, coarse keypoints:
+    enlarged to 800 px, NeRF-synthetic's mic (400 px) gave 4.3x the matches within 2 px of the
+    epipolar lines, DTU scan24 (400 px) 1.8x, horns (504 px) 1.2x, flower the same, and every
+    scene a higher fraction of them (docs/experiments/2026-11-28-matchers.md)."""
     min_confidence: float = 0.1
     """LightGlue's match threshold (matches scoring below it are dropped)."""
     min_cosine: float = 0.82
