@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet bench-cameras
+.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet bench-cameras bench-matchers
 
 venv: $(VENV)/.installed
 
@@ -71,6 +71,11 @@ bench-render-sheet: venv
 
 bench-cameras: venv
 	$(PY) -m sparsesplat.engine.bench.cameras $(BENCH_ARGS)
+
+# The learned matchers against the dataset's epipolar geometry, then the matched start.
+bench-matchers: venv
+	$(PY) -m sparsesplat.engine.bench.matchers $(BENCH_ARGS)
+	$(PY) -m sparsesplat.engine.bench.matched_start
 
 bench-service: venv
 	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)
