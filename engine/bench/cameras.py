@@ -33,6 +33,9 @@ SCENES = {
     "mic": "nerf_synthetic/mic",
     "dtu_scan24": "dtu/dtu_scan24",
     "dtu_scan37": "dtu/dtu_scan37",
+    "beer_can": "nerf_llff_data/beer_can",
+    "juicebox_table": "nerf_llff_data/juicebox_table",
+    "fox": "instant_ngp/fox",
 }
 """Scene name -> folder under the shared data root."""
 COLUMNS = ["scene", "intrinsics", "views", "registered", "median_deg", "max_deg",

@@ -22,6 +22,16 @@ MIN_POINTS = 20
 """Fewest triangulated points for a usable result."""
 MAX_REPROJECTION_PX = 2.0
 """Largest mean reprojection error accepted (pixels)."""
+MIN_PLACED = 3
+"""Fewest photos a set may keep when some cannot be placed: with fewer, the whole set is
+refused (three is the design point of the method)."""
+MIN_PLACED_SHARE = 0.5
+"""...and at least this share of the photos: a set mostly left out is refused as a whole."""
+MATCHER_REACH = (
+    "photos need a neighbour taken within roughly 45 degrees around the object (the learned "
+    "matcher found no match between views 80-98 degrees apart)"
+)
+"""What a photo without a placed neighbour is told."""
 MIN_TRIANGULATION_DEG = 0.2
 """Smallest median triangulation angle accepted: below it depth is guesswork (the three
 forward-facing LLFF views measure about 1-3°)."""
@@ -78,9 +88,8 @@ def result_problem(
     if rec is None or len(rec.world_to_camera) < 2:
         return _no_start(names, stats, min_inliers)
     missing = [i for i in range(n) if i not in rec.world_to_camera]
-    if missing:
+    if missing and len(rec.world_to_camera) < max(MIN_PLACED, math.ceil(MIN_PLACED_SHARE * n)):
         i = missing[0]
-        partner = max((j for j in range(n) if j != i), key=lambda j: stats.inliers(i, j))
         others = (
             f" ({len(missing) - 1} other photo(s) could not be placed either: "
             f"{', '.join(str(k + 1) for k in missing[1:])})"
@@ -88,10 +97,9 @@ def result_problem(
             else ""
         )
         return (
-            f"{photo(names, i)} could not be placed: it shares too few features with the "
-            f"others (at most {stats.inliers(i, partner)} matches, with "
-            f"{photo(names, partner)}){others}: take the photos closer together, with more "
-            "overlap"
+            f"{unplaced_reason(names, stats, i)}{others}; only {n - len(missing)} of {n} "
+            f"photos were placed (at least {max(MIN_PLACED, math.ceil(MIN_PLACED_SHARE * n))} "
+            "needed): take the photos closer together, with more overlap"
         )
     if len(rec.points) < MIN_POINTS:
         return (
@@ -112,6 +120,17 @@ def result_problem(
             "between shots"
         )
     return None
+
+
+def unplaced_reason(names: list[str], stats: MatchStats, i: int) -> str:
+    """Why photo ``i`` was left out: its best partner and their match count."""
+    n = len(names)
+    partner = max((j for j in range(n) if j != i), key=lambda j: stats.inliers(i, j))
+    return (
+        f"{photo(names, i)} could not be placed: it shares too few features with the others "
+        f"(at most {stats.inliers(i, partner)} verified matches, with {photo(names, partner)}); "
+        f"{MATCHER_REACH}"
+    )
 
 
 def _no_start(names: list[str], stats: MatchStats, min_inliers: int) -> str:

@@ -101,15 +101,22 @@ def run_colmap(
     pycolmap.extract_features(
         database, image_dir, names, pycolmap.CameraMode.SINGLE, reader, extraction, cpu
     )
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = threads
-    matching.guided_matching = attempt.guided_matching
     verification = pycolmap.TwoViewGeometryOptions()
     verification.min_num_inliers = attempt.min_inliers
     verification.ransac.random_seed = seed
-    pycolmap.match_exhaustive(
-        database, matching_options=matching, verification_options=verification, device=cpu
-    )
+    if attempt.matcher is not None:
+        from sparsesplat.engine.sfm.learned import import_matches, learned_matches
+
+        found = learned_matches(image_dir, names, attempt.matcher)
+        pairs = import_matches(pycolmap, database, names, found, work_dir)
+        pycolmap.verify_matches(database, pairs, options=verification)
+    else:
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = threads
+        matching.guided_matching = attempt.guided_matching
+        pycolmap.match_exhaustive(
+            database, matching_options=matching, verification_options=verification, device=cpu
+        )
     stats = _match_stats(pycolmap, database, names)
     options = _mapper_options(pycolmap, prior, attempt, threads, seed)
     out = work_dir / "sparse"
