@@ -16,13 +16,17 @@ CAMERAS_FILE = "cameras.json"
 
 def estimate_document(estimate: CameraEstimate, images: list[str] | None = None) -> dict[str, Any]:
     """The estimate as a ``cameras.json`` document; ``images`` renames the frames' images
-    (paths relative to the scene folder, in the order the photos were given)."""
+    (paths relative to the scene folder of all the photos given, in their order; a frame is
+    matched by its photo's file name, so photos left out simply have no frame)."""
     document = estimate.cameras.model_dump(mode="json", exclude_none=True)
     if images is not None:
-        if len(images) != len(document["frames"]):
-            raise ValueError(f"{len(images)} image names for {len(document['frames'])} frames")
-        for frame, image in zip(document["frames"], images, strict=True):
-            frame["image"] = image
+        by_name = {Path(image).name: image for image in images}
+        if len(by_name) != len(images):
+            raise ValueError(f"two of the image paths share a file name: {images}")
+        for frame in document["frames"]:
+            if frame["image"] not in by_name:
+                raise ValueError(f"no image path for the frame of {frame['image']}: {images}")
+            frame["image"] = by_name[frame["image"]]
     return document
 
 

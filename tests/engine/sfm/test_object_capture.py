@@ -55,10 +55,12 @@ def _neighbours(count: int, reach_deg: float) -> list[int]:
     return [int(i) for i in order[:count]]
 
 
-def _write(folder: Path, index: int, name: str, mirror: bool = False) -> Path:
+def _write(folder: Path, index: int, name: str, mirror: bool = False, size: int = SIZE) -> Path:
+    """Training view ``index`` of mic composited on white at ``size`` px as ``folder/name``
+    (mirrored left to right when asked)."""
     frame = _frames()[index]
     with Image.open(MIC / (frame["file_path"].removeprefix("./") + ".png")) as image:
-        rgba = image.convert("RGBA").resize((SIZE, SIZE), Image.Resampling.LANCZOS)
+        rgba = image.convert("RGBA").resize((size, size), Image.Resampling.LANCZOS)
     white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
     rgb = Image.alpha_composite(white, rgba).convert("RGB")  # as a user's photo: no alpha
     if mirror:
