@@ -24,16 +24,15 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from sparsesplat.api.renders import (
-    EMPTY_RENDER_COVERAGE,
     MEDIA_TYPES,
     RENDER_WARNING_HEADER,
     RenderRequest,
+    empty_render_warning,
 )
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
-from sparsesplat.worker.encode import DEPTH16_UNITS_PER_SCENE_UNIT, encode
 
 log = logging.getLogger("sparsesplat.render")
 
@@ -52,7 +51,7 @@ class ModelCache:
     def get(self, model_id: str, mode: str = "neural") -> Any:
         """The loaded model (reloaded when its checkpoint changed), ready to render in ``mode``;
         FileNotFoundError if none."""
-        from sparsesplat.engine.train import load_model
+        from sparsesplat.engine.model import load_model
 
         path = self.storage.artifact(model_id, "checkpoint")
         mtime = path.stat().st_mtime  # FileNotFoundError when the model does not exist
@@ -65,7 +64,8 @@ class ModelCache:
             self._store(model_id, mtime, model)
         if mode == "baked" and model_id not in self._export_read:
             # Read on the first baked render only: most models are only ever rendered exactly.
-            self._use_export_sh(model_id, model)
+            # The run's export holds the bake fitted to the training directions too.
+            model.use_export_sh(self.storage.artifact(model_id, "ply"))
             self._export_read.add(model_id)
         return model
 
@@ -76,27 +76,6 @@ class ModelCache:
         while len(self._models) > self.capacity:
             gone, _ = self._models.popitem(last=False)
             self._export_read.discard(gone)
-
-    def _use_export_sh(self, model_id: str, model: Any) -> None:
-        """Serve ``baked`` renders with the SH of the run's .ply export when it is this model's.
-
-        The trainer baked them fitting the training directions as well as the sphere, which is
-        more faithful where the model was trained than a bake from sphere directions alone;
-        without a matching export the model bakes its own on the first ``baked`` render.
-        """
-        from sparsesplat.engine.export.ply import read_ply
-
-        path = self.storage.artifact(model_id, "ply")
-        if not path.is_file():
-            return
-        try:
-            ply = read_ply(path)
-        except Exception:  # an unreadable export only costs the fidelity of the bake
-            log.warning("cannot read the .ply export; baked renders bake again", exc_info=True)
-            return
-        means = model.gaussians.means.detach().cpu()
-        if ply["means"].shape == means.shape and bool((ply["means"] == means).all()):
-            model.use_baked_sh(ply["sh"])
 
     def __len__(self) -> int:
         return len(self._models)
@@ -135,19 +114,12 @@ class Renderer:
         # for the lock), so that a client can tell it from the hops and the queueing.
         headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         headers["X-Coverage"] = ",".join(f"{coverage:.4f}" for coverage in coverages)
-        empty = [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
-        if empty:
-            which = (
-                "the camera sees"
-                if request.path is None
-                else (f"{len(empty)} of {len(frames)} cameras (from {empty[0]}) see")
-            )
-            headers[RENDER_WARNING_HEADER] = (
-                f"{which} nothing of the model (under {EMPTY_RENDER_COVERAGE:.0%} of pixels "
-                "covered): check the camera's 'convention' and 'pose', and that it is near "
-                "the training cameras and faces the scene"
-            )
+        warning = empty_render_warning(coverages, path=request.path is not None)
+        if warning is not None:
+            headers[RENDER_WARNING_HEADER] = warning
         if request.output == "depth16":
+            from sparsesplat.engine.model.encode import DEPTH16_UNITS_PER_SCENE_UNIT
+
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:
             return frames[0], MEDIA_TYPES[request.output], headers
@@ -163,6 +135,8 @@ class Renderer:
 
 def _encode_render(out: Any, request: RenderRequest) -> bytes:
     """The bytes of ``request.output`` for one render (a RasterOutput)."""
+    from sparsesplat.engine.model.encode import encode
+
     # Views of the render's memory, not copies: the encoder reads them once.
     image = out.image.permute(1, 2, 0).cpu().numpy()
     depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()
