@@ -4,7 +4,9 @@ The API process never renders (it must stay responsive, and it has no torch); it
 validated request here. Loaded models stay in an LRU cache with their view-independent part
 (the neural colour field's per-Gaussian features) precomputed, so a repeated render of one
 model costs a rasterization plus the small view-dependent colour step. One render at a time
-per process (connections are threaded): a render uses every torch thread it is given.
+per process (connections are threaded): a render uses every torch thread it is given. Models,
+their renders and the encoded outputs come from the trained-model package (``engine/model/``);
+this process never loads the training package (tests/engine/model/test_model_package.py).
 
 Protocol: ``POST /render`` with JSON ``{"model_id": ..., "request": RenderRequest}`` answers
 the encoded bytes (a ZIP of frames for a camera path); ``GET /healthz`` answers ``ok``.
@@ -21,7 +23,7 @@ import time
 import zipfile
 from collections import OrderedDict
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sparsesplat.api.renders import (
     MEDIA_TYPES,
@@ -34,6 +36,9 @@ from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 
+if TYPE_CHECKING:
+    from sparsesplat.engine.model import TrainedModel
+
 log = logging.getLogger("sparsesplat.render")
 
 
@@ -45,10 +50,10 @@ class ModelCache:
         self.storage = storage
         self.capacity = capacity
         self.device = device
-        self._models: OrderedDict[str, tuple[float, Any]] = OrderedDict()
+        self._models: OrderedDict[str, tuple[float, TrainedModel]] = OrderedDict()
         self._export_read: set[str] = set()  # loaded models given their export's SH (if any)
 
-    def get(self, model_id: str, mode: str = "neural") -> Any:
+    def get(self, model_id: str, mode: str = "neural") -> TrainedModel:
         """The loaded model (reloaded when its checkpoint changed), ready to render in ``mode``;
         FileNotFoundError if none."""
         from sparsesplat.engine.model import load_model
@@ -69,7 +74,7 @@ class ModelCache:
             self._export_read.add(model_id)
         return model
 
-    def _store(self, model_id: str, mtime: float, model: Any) -> None:
+    def _store(self, model_id: str, mtime: float, model: TrainedModel) -> None:
         self._export_read.discard(model_id)
         self._models[model_id] = (mtime, model)
         self._models.move_to_end(model_id)

@@ -14,11 +14,11 @@ import torch
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.sh import C0
+from sparsesplat.engine.model import raster as raster_module
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train import Trainer, preset
-from sparsesplat.engine.train import trainer as trainer_module
 from sparsesplat.engine.train.regularizers.consistency import seen_depth, warp_consistency_loss
 
 
@@ -56,7 +56,7 @@ def _spy_rasterizer(
     trainer (depth-only renders, with 0 feature channels, are left out)."""
     calls: list[tuple[int, bool]] = []
     holder: dict[str, Trainer] = {}
-    real = trainer_module.rasterize
+    real = raster_module.rasterize
 
     def spy(means: torch.Tensor, *args: Any, **kwargs: Any) -> RasterOutput:
         t = holder.get("t")
@@ -64,7 +64,8 @@ def _spy_rasterizer(
             calls.append((means.shape[0] - len(t.gaussians), torch.is_grad_enabled()))
         return real(means, *args, **kwargs)
 
-    monkeypatch.setattr(trainer_module, "rasterize", spy)
+    # Before the trainer binds its rasterizer (engine/model/raster.py), so it binds the spy.
+    monkeypatch.setattr(raster_module, "rasterize", spy)
     return calls, holder
 
 
