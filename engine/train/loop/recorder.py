@@ -19,6 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from sparsesplat.api.renders import EMPTY_RENDER_COVERAGE
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor
 from sparsesplat.engine.gaussians import Gaussians
@@ -37,8 +38,6 @@ log = logging.getLogger(__name__)
 BACKGROUND_MARGIN_DB = 0.5
 """A held-out PSNR within this of the constant-background image's is no better than an empty
 model (the run warns)."""
-EMPTY_COVERAGE = 0.01
-"""A render whose mean alpha is below this is (nearly) empty."""
 
 
 def json_safe(value: Any) -> Any:
@@ -162,13 +161,14 @@ class Recorder:
     def emptiness_warning(self, psnr_db: float | None) -> str | None:
         """A warning when the last evaluated renders are (nearly) empty or score no better
         than the constant background, else None."""
-        empty = sorted(n for n, c in self.view_coverage.items() if c < EMPTY_COVERAGE)
+        empty = sorted(n for n, c in self.view_coverage.items() if c < EMPTY_RENDER_COVERAGE)
         base = self.background_psnr()
         problems = []
         if empty:
+            listed = ", ".join(empty[:5])
             problems.append(
                 f"{len(empty)} of {len(self.view_coverage)} evaluated views render (nearly) "
-                f"empty (under {EMPTY_COVERAGE:.0%} of pixels covered: {', '.join(empty[:5])})"
+                f"empty (under {EMPTY_RENDER_COVERAGE:.0%} of pixels covered: {listed})"
             )
         if psnr_db is not None and base is not None and psnr_db <= base + BACKGROUND_MARGIN_DB:
             problems.append(
