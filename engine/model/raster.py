@@ -4,9 +4,8 @@ rasterizer bound to them, shared by the trainer's renders and a loaded model's."
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from torch import Tensor
 
@@ -16,9 +15,25 @@ from sparsesplat.engine.raster import RasterOutput, rasterize
 RasterBackendName = Literal["auto", "cpu", "cuda", "reference"]
 """The rasterizer backends ``engine.raster.rasterize`` accepts."""
 
-Raster = Callable[[Tensor, Tensor, Tensor, Tensor, Tensor, Camera, Tensor | None], RasterOutput]
-"""``raster(means, log_scales, quats, opacity_logits, features, camera, background)``: the
-run's rasterizer with its near plane, dilation and backend bound (:func:`bind_raster`)."""
+
+class Raster(Protocol):
+    """``raster(means, log_scales, quats, opacity_logits, features, camera, background)``: the
+    run's rasterizer with its near plane, dilation and backend bound (:func:`bind_raster`)."""
+
+    def __call__(
+        self,
+        means: Tensor,
+        log_scales: Tensor,
+        quats: Tensor,
+        opacity_logits: Tensor,
+        features: Tensor,
+        camera: Camera,
+        background: Tensor | None,
+        *,
+        opacity_depth: bool = False,
+    ) -> RasterOutput:
+        """Render; ``opacity_depth`` as ``rasterize`` takes it (the fused soft-depth term)."""
+        ...
 
 
 @dataclass(frozen=True)

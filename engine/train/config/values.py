@@ -151,11 +151,12 @@ def checked(name: str, hint: Any, value: Any) -> Any:
         raise ConfigError(f"{name} must be {describe(hint)}, got {value!r}") from None
 
 
-def check_types(config: Any) -> None:
+def check_types(config: object) -> None:
     """Raise :class:`ConfigError` naming the first field of ``config`` (a config dataclass)
     whose value does not fit its type hint (a config built in code rather than from values
     read by name)."""
-    for name, hint in settable_fields(type(config)).items():
+    cls: type = type(config)
+    for name, hint in settable_fields(cls).items():
         section, _, sub = name.partition(".")
         value = getattr(getattr(config, section), sub) if sub else getattr(config, section)
         if name == "background":
