@@ -18,8 +18,7 @@ from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config import ConfigError
 from sparsesplat.engine.train.regularizers.depth_gate import agreeing_views, as_prior
-
-from .test_trainer_parts import small as parts_config
+from tests.engine.train.loop.test_trainer_parts import small as parts_config
 
 
 def small(**overrides: Any):  # type: ignore[no-untyped-def]
