@@ -15,6 +15,7 @@ from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel, NeuralColor, make_color_model
 from sparsesplat.engine.color.view_colors import BakedViewColors, NeuralViewColors
+from sparsesplat.engine.export.ply import read_ply
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.model.checkpoint import CheckpointError, load_checkpoint
 from sparsesplat.engine.model.raster import bind_raster, stored_raster_config
@@ -80,8 +81,6 @@ class TrainedModel:
         more faithful where the model was trained than a bake from sphere directions alone;
         without a matching export the model bakes its own on the first ``baked`` render.
         """
-        from sparsesplat.engine.export.ply import read_ply
-
         if not ply.is_file():
             return False
         try:
