@@ -44,24 +44,12 @@ EMPTY_RENDER_COVERAGE = 0.01
 """A render whose mean alpha is below this sees (nearly) nothing of the model."""
 
 
-def empty_render_warning(coverages: list[float], path: bool = False) -> str | None:
-    """What to tell a caller whose renders (mean alpha of each, in camera order) see (nearly)
-    nothing of the model, or None when every one sees it: the rule of the service's
-    :data:`RENDER_WARNING_HEADER` and of the local ``sparsesplat render``. ``path``: the
-    renders are a camera path's frames (the text counts them)."""
-    empty = [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
-    if not empty:
-        return None
-    which = (
-        f"{len(empty)} of {len(coverages)} cameras (from {empty[0]}) see"
-        if path
-        else "the camera sees"
-    )
-    return (
-        f"{which} nothing of the model (under {EMPTY_RENDER_COVERAGE:.0%} of pixels "
-        "covered): check the camera's 'convention' and 'pose', and that it is near "
-        "the training cameras and faces the scene"
-    )
+def empty_renders(coverages: list[float]) -> list[int]:
+    """The positions of the renders (given by their mean alpha, in camera order) that see
+    (nearly) nothing of the model: the one rule behind the service's
+    :data:`RENDER_WARNING_HEADER` and the local ``sparsesplat render`` warning (each words it
+    for its own reader)."""
+    return [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
 
 
 class RenderRequest(BaseModel):

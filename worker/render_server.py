@@ -26,10 +26,11 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import TYPE_CHECKING, Any
 
 from sparsesplat.api.renders import (
+    EMPTY_RENDER_COVERAGE,
     MEDIA_TYPES,
     RENDER_WARNING_HEADER,
     RenderRequest,
-    empty_render_warning,
+    empty_renders,
 )
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
@@ -119,9 +120,18 @@ class Renderer:
         # for the lock), so that a client can tell it from the hops and the queueing.
         headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         headers["X-Coverage"] = ",".join(f"{coverage:.4f}" for coverage in coverages)
-        warning = empty_render_warning(coverages, path=request.path is not None)
-        if warning is not None:
-            headers[RENDER_WARNING_HEADER] = warning
+        empty = empty_renders(coverages)
+        if empty:
+            which = (
+                "the camera sees"
+                if request.path is None
+                else (f"{len(empty)} of {len(frames)} cameras (from {empty[0]}) see")
+            )
+            headers[RENDER_WARNING_HEADER] = (
+                f"{which} nothing of the model (under {EMPTY_RENDER_COVERAGE:.0%} of pixels "
+                "covered): check the camera's 'convention' and 'pose', and that it is near "
+                "the training cameras and faces the scene"
+            )
         if request.output == "depth16":
             from sparsesplat.engine.model.encode import DEPTH16_UNITS_PER_SCENE_UNIT
 

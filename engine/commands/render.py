@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 from sparsesplat.api.names import IMAGE_OUTPUT_SUFFIXES
-from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, empty_render_warning
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, empty_renders
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -133,9 +133,14 @@ def _run(args: argparse.Namespace) -> int:
     prepare_native(device)
     model = load_model(args.checkpoint, device)
     out = model.render(Camera.from_wire(camera), mode=args.mode)
-    warning = empty_render_warning([float(out.alpha.mean())])
-    if warning is not None:
-        print(f"sparsesplat render: warning: {warning}", file=sys.stderr)
+    coverage = float(out.alpha.mean())
+    if empty_renders([coverage]):
+        print(
+            f"sparsesplat render: warning: the camera sees (almost) nothing of the model "
+            f"({coverage:.1%} of pixels covered); check 'convention' and 'pose' (an OpenGL "
+            "matrix read as OpenCV looks backwards) and that the camera faces the scene",
+            file=sys.stderr,
+        )
     # Pillow's default settings for each format (the service chooses faster ones for latency).
     fmt = IMAGE_OUTPUT_SUFFIXES[output.suffix.lower()]
     try:

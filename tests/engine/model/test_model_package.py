@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from sparsesplat.api.renders import EMPTY_RENDER_COVERAGE, empty_render_warning
+from sparsesplat.api.renders import EMPTY_RENDER_COVERAGE, empty_renders
 from sparsesplat.engine.color.models import SHColor
 from sparsesplat.engine.model import CHECKPOINT_NAME, save_checkpoint
 from sparsesplat.engine.model.encode import encode, encode_image
@@ -93,12 +93,9 @@ def test_stored_raster_settings_are_read_from_either_stored_form() -> None:
 
 def test_one_empty_render_rule_for_the_service_and_the_command() -> None:
     seen, empty = 2 * EMPTY_RENDER_COVERAGE, EMPTY_RENDER_COVERAGE / 2
-    assert empty_render_warning([seen]) is None
-    assert empty_render_warning([seen, seen], path=True) is None
-    one = empty_render_warning([empty])
-    assert one is not None and one.startswith("the camera sees nothing of the model")
-    path = empty_render_warning([seen, empty, empty], path=True)
-    assert path is not None and path.startswith("2 of 3 cameras (from 1) see nothing")
+    assert empty_renders([seen]) == []
+    assert empty_renders([empty]) == [0]
+    assert empty_renders([seen, empty, EMPTY_RENDER_COVERAGE, empty]) == [1, 3]
 
 
 def test_one_image_writer_with_each_callers_settings() -> None:
