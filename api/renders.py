@@ -44,6 +44,14 @@ EMPTY_RENDER_COVERAGE = 0.01
 """A render whose mean alpha is below this sees (nearly) nothing of the model."""
 
 
+def empty_renders(coverages: list[float]) -> list[int]:
+    """The positions of the renders (given by their mean alpha, in camera order) that see
+    (nearly) nothing of the model: the one rule behind the service's
+    :data:`RENDER_WARNING_HEADER` and the local ``sparsesplat render`` warning (each words it
+    for its own reader)."""
+    return [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
+
+
 class RenderRequest(BaseModel):
     """Body of ``POST /v1/models/{id}/render``: exactly one of ``camera`` or ``path``."""
 

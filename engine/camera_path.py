@@ -9,7 +9,7 @@ re-centred |positions|; 2 turns, the depth axis oscillating at half rate (``zrat
 camera looks at the point ``focal`` in front of the average pose,
 ``focal = 1 / (0.25 / (0.9 near) + 0.75 / (5 far))`` with near/far the smallest/largest bound of
 all images. The LLFF loader keeps the path as ``Scene.render_path``; near-plane pruning
-(``engine/train/near_prune.py``) deletes Gaussians close to it.
+(``engine/train/regularizers/near_prune.py``) deletes Gaussians close to it.
 """
 
 from __future__ import annotations

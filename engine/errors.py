@@ -32,6 +32,10 @@ class TrainingDiverged(EngineError, FloatingPointError):
     """Training produced non-finite values; the message names the step and the parameter group."""
 
 
+class ConfigError(EngineError, ValueError):
+    """A training configuration value is invalid (the message names the dotted field)."""
+
+
 class ExportError(EngineError, ValueError):
     """Gaussians cannot be exported or a file cannot be read back: bad shapes, bad headers."""
 

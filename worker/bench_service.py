@@ -69,7 +69,7 @@ def _prepare(
     stores models (checkpoint and exports)."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
-    from sparsesplat.engine.train.overrides import apply_overrides
+    from sparsesplat.engine.train.config.overrides import apply_overrides
 
     scene, _ = make_scene(seed=0, width=WIDTH, height=HEIGHT, n_train=3, n_test=2,
                           n_gaussians=400)  # fmt: skip

@@ -111,8 +111,8 @@ def _train(
     beat: JobHeartbeat,
 ) -> Outcome:
     from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.engine.model.checkpoint import CHECKPOINT_NAME
     from sparsesplat.engine.train import ProgressRecord, StateChange
-    from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME
     from sparsesplat.engine.train.run import RunPlan, build_run
 
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
@@ -198,7 +198,7 @@ def _keep_only_the_model(storage: Storage, job_id: str, run_dir: Path) -> int:
     tables at half precision), the run's scratch files go (cached priors, temporary
     files; the prior pictures stay, a route serves them). Returns the job's bytes
     on disk, upload included."""
-    from sparsesplat.engine.train.checkpoint import (
+    from sparsesplat.engine.model.checkpoint import (
         CHECKPOINT_NAME,
         load_checkpoint,
         model_state,

@@ -4,7 +4,9 @@ The API process never renders (it must stay responsive, and it has no torch); it
 validated request here. Loaded models stay in an LRU cache with their view-independent part
 (the neural colour field's per-Gaussian features) precomputed, so a repeated render of one
 model costs a rasterization plus the small view-dependent colour step. One render at a time
-per process (connections are threaded): a render uses every torch thread it is given.
+per process (connections are threaded): a render uses every torch thread it is given. Models,
+their renders and the encoded outputs come from the trained-model package (``engine/model/``);
+this process never loads the training package (tests/engine/model/test_model_package.py).
 
 Protocol: ``POST /render`` with JSON ``{"model_id": ..., "request": RenderRequest}`` answers
 the encoded bytes (a ZIP of frames for a camera path); ``GET /healthz`` answers ``ok``.
@@ -21,20 +23,23 @@ import time
 import zipfile
 from collections import OrderedDict
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sparsesplat.api.renders import (
     EMPTY_RENDER_COVERAGE,
     MEDIA_TYPES,
     RENDER_WARNING_HEADER,
     RenderRequest,
+    empty_renders,
 )
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage, StorageError
 from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
-from sparsesplat.worker.encode import DEPTH16_UNITS_PER_SCENE_UNIT, encode
 from sparsesplat.worker.kernels import prepare_kernels
+
+if TYPE_CHECKING:
+    from sparsesplat.engine.model import TrainedModel
 
 log = logging.getLogger("sparsesplat.render")
 
@@ -47,13 +52,13 @@ class ModelCache:
         self.storage = storage
         self.capacity = capacity
         self.device = device
-        self._models: OrderedDict[str, tuple[float, Any]] = OrderedDict()
+        self._models: OrderedDict[str, tuple[float, TrainedModel]] = OrderedDict()
         self._export_read: set[str] = set()  # loaded models given their export's SH (if any)
 
-    def get(self, model_id: str, mode: str = "neural") -> Any:
+    def get(self, model_id: str, mode: str = "neural") -> TrainedModel:
         """The loaded model (reloaded when its checkpoint changed), ready to render in ``mode``;
         FileNotFoundError if none."""
-        from sparsesplat.engine.train import load_model
+        from sparsesplat.engine.model import load_model
 
         path = self.storage.artifact(model_id, "checkpoint")
         mtime = path.stat().st_mtime  # FileNotFoundError when the model does not exist
@@ -66,38 +71,18 @@ class ModelCache:
             self._store(model_id, mtime, model)
         if mode == "baked" and model_id not in self._export_read:
             # Read on the first baked render only: most models are only ever rendered exactly.
-            self._use_export_sh(model_id, model)
+            # The run's export holds the bake fitted to the training directions too.
+            model.use_export_sh(self.storage.artifact(model_id, "ply"))
             self._export_read.add(model_id)
         return model
 
-    def _store(self, model_id: str, mtime: float, model: Any) -> None:
+    def _store(self, model_id: str, mtime: float, model: TrainedModel) -> None:
         self._export_read.discard(model_id)
         self._models[model_id] = (mtime, model)
         self._models.move_to_end(model_id)
         while len(self._models) > self.capacity:
             gone, _ = self._models.popitem(last=False)
             self._export_read.discard(gone)
-
-    def _use_export_sh(self, model_id: str, model: Any) -> None:
-        """Serve ``baked`` renders with the SH of the run's .ply export when it is this model's.
-
-        The trainer baked them fitting the training directions as well as the sphere, which is
-        more faithful where the model was trained than a bake from sphere directions alone;
-        without a matching export the model bakes its own on the first ``baked`` render.
-        """
-        from sparsesplat.engine.export.ply import read_ply
-
-        path = self.storage.artifact(model_id, "ply")
-        if not path.is_file():
-            return
-        try:
-            ply = read_ply(path)
-        except Exception:  # an unreadable export only costs the fidelity of the bake
-            log.warning("cannot read the .ply export; baked renders bake again", exc_info=True)
-            return
-        means = model.gaussians.means.detach().cpu()
-        if ply["means"].shape == means.shape and bool((ply["means"] == means).all()):
-            model.use_baked_sh(ply["sh"])
 
     def __len__(self) -> int:
         return len(self._models)
@@ -136,7 +121,7 @@ class Renderer:
         # for the lock), so that a client can tell it from the hops and the queueing.
         headers = {"X-Render-Ms": f"{1000 * seconds:.1f}"}
         headers["X-Coverage"] = ",".join(f"{coverage:.4f}" for coverage in coverages)
-        empty = [i for i, coverage in enumerate(coverages) if coverage < EMPTY_RENDER_COVERAGE]
+        empty = empty_renders(coverages)
         if empty:
             which = (
                 "the camera sees"
@@ -149,6 +134,8 @@ class Renderer:
                 "the training cameras and faces the scene"
             )
         if request.output == "depth16":
+            from sparsesplat.engine.model.encode import DEPTH16_UNITS_PER_SCENE_UNIT
+
             headers["X-Depth-Scale"] = str(DEPTH16_UNITS_PER_SCENE_UNIT)
         if request.path is None:
             return frames[0], MEDIA_TYPES[request.output], headers
@@ -164,6 +151,8 @@ class Renderer:
 
 def _encode_render(out: Any, request: RenderRequest) -> bytes:
     """The bytes of ``request.output`` for one render (a RasterOutput)."""
+    from sparsesplat.engine.model.encode import encode
+
     # Views of the render's memory, not copies: the encoder reads them once.
     image = out.image.permute(1, 2, 0).cpu().numpy()
     depth, alpha = out.depth[0].cpu().numpy(), out.alpha[0].cpu().numpy()

@@ -203,7 +203,7 @@ def main() -> None:
         "footprints and depth complexity, in place of the random box's)",
     )  # fmt: skip
     args = parser.parse_args()
-    from sparsesplat.engine.train.overrides import parse_override
+    from sparsesplat.engine.train.config.overrides import parse_override
 
     overrides = dict(parse_override(item) for item in args.set)
     print(machine_info())

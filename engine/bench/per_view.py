@@ -59,7 +59,7 @@ def view_psnr_of_run(out_dir: Path, scene: Any) -> dict[str, float]:
     import torch
 
     from sparsesplat.engine.metrics.evaluate import PSNR_CEILING, Evaluator
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.model import load_model
 
     model = load_model(checkpoint)
     evaluator = Evaluator(lpips_mode="off", psnr_ceiling=PSNR_CEILING)

@@ -140,7 +140,7 @@ def variant_overrides(variant: str) -> dict[str, Any]:
         return {"depth.prior": rest}
     if kind == "set" and rest:
         from sparsesplat.engine.train.config import ConfigError
-        from sparsesplat.engine.train.overrides import parse_override
+        from sparsesplat.engine.train.config.overrides import parse_override
 
         overrides: dict[str, Any] = {}
         for item in rest.split("+"):
@@ -399,7 +399,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train.overrides import apply_overrides
+    from sparsesplat.engine.train.config.overrides import apply_overrides
     from sparsesplat.engine.train.run import training_layout
 
     if args.threads:

@@ -208,7 +208,7 @@ def score_runs(run_dirs: Sequence[Path], reference_dir: Path) -> list[dict[str, 
     """One row per bench-quality run folder: its held-out geometry against the reference
     model of its scene (``reference_dir/<scene>/run``, written by this benchmark)."""
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train.checkpoint import load_model
+    from sparsesplat.engine.model import load_model
 
     rows, scenes, references = [], {}, {}
     for run in run_dirs:

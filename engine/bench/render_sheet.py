@@ -24,8 +24,8 @@ from PIL import Image, ImageDraw
 
 if TYPE_CHECKING:
     from sparsesplat.engine.metrics.evaluate import Evaluator
+    from sparsesplat.engine.model import TrainedModel
     from sparsesplat.engine.scene import Scene
-    from sparsesplat.engine.train.checkpoint import TrainedModel
 
 TILE_HEIGHT = 189
 """Each tile is scaled to this height (a 504x378 view at half size)."""
@@ -108,7 +108,7 @@ def render_sheet(scene_dir: Path, run: Path, out: Path, title: str = "") -> Path
     """Render the held-out views of ``scene_dir`` with the model of ``run``; write ``out``."""
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.metrics.evaluate import PSNR_CEILING, Evaluator
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.model import load_model
 
     scene = load_scene(scene_dir)
     model = load_model(run)

@@ -117,6 +117,6 @@ def prepare_native(device: str, color: bool = True, training: bool = False) -> N
 
 def json_line(obj: dict[str, Any]) -> str:
     """One JSON object on one line; non-finite floats become null (valid JSON)."""
-    from sparsesplat.engine.train.trainer import json_safe
+    from sparsesplat.engine.train.loop.recorder import json_safe
 
     return json.dumps(json_safe(obj), allow_nan=False, default=str)

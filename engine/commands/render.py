@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 from sparsesplat.api.names import IMAGE_OUTPUT_SUFFIXES
-from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode
+from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, empty_renders
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -26,8 +26,6 @@ IMAGE_SUFFIXES = {suffix: fmt.upper() for suffix, fmt in IMAGE_OUTPUT_SUFFIXES.i
 """Output suffix -> PIL format."""
 MAX_RENDER_SIDE = 8192
 """Largest width or height a render may have (memory guard)."""
-EMPTY_RENDER_COVERAGE = 0.01
-"""A render whose mean alpha is below this sees (almost) nothing of the model: warn."""
 
 EPILOG = """camera JSON (a file, or the JSON itself inline):
   {"convention": "opencv" | "opengl", "pose": "camera_to_world" | "world_to_camera",
@@ -123,9 +121,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     import numpy as np
-    from PIL import Image
 
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.camera import Camera
+    from sparsesplat.engine.model import load_model
+    from sparsesplat.engine.model.encode import encode_image
 
     camera = read_camera_spec(args.camera)
     output = _output_path(args.output, IMAGE_SUFFIXES, "-o")
@@ -133,20 +132,19 @@ def _run(args: argparse.Namespace) -> int:
     device = check_device(args.device)
     prepare_native(device)
     model = load_model(args.checkpoint, device)
-    from sparsesplat.engine.camera import Camera
-
     out = model.render(Camera.from_wire(camera), mode=args.mode)
     coverage = float(out.alpha.mean())
-    if coverage < EMPTY_RENDER_COVERAGE:
+    if empty_renders([coverage]):
         print(
             f"sparsesplat render: warning: the camera sees (almost) nothing of the model "
             f"({coverage:.1%} of pixels covered); check 'convention' and 'pose' (an OpenGL "
             "matrix read as OpenCV looks backwards) and that the camera faces the scene",
             file=sys.stderr,
         )
-    img = (out.image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
+    # Pillow's default settings for each format (the service chooses faster ones for latency).
+    fmt = IMAGE_OUTPUT_SUFFIXES[output.suffix.lower()]
     try:
-        Image.fromarray(img).save(output, format=IMAGE_SUFFIXES[output.suffix.lower()])
+        output.write_bytes(encode_image(out.image.permute(1, 2, 0).cpu().numpy(), fmt))
         if depth_path is not None:
             np.save(depth_path, out.depth[0].cpu().numpy())
     except OSError as exc:

@@ -30,7 +30,7 @@ PRIOR_KINDS = (
 """The ``--prior`` kinds, one line each for ``--help``."""
 
 PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
-"""Presets in the order ``--help`` lists them (``engine.train.presets.PRESETS``)."""
+"""Presets in the order ``--help`` lists them (``engine.train.config.presets.PRESETS``)."""
 
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's recipe; where the training "
@@ -48,7 +48,7 @@ _PRESET_HELP = {
     "recipe (forward-facing: from the plane-sweep point cloud, 3000 iterations; otherwise "
     "with opacity decay, 5000 iterations)",
 }
-# When to use each preset and its default run length. Kept here, not in engine.train.presets,
+# When to use each preset and its default run length. Kept here, not in engine.train.config.presets,
 # because this module must not import torch at parse time; tests/cli checks that it names
 # exactly the presets that exist, with their PRESET_ITERATIONS and the lengths of their
 # LAYOUT_RECIPES.
@@ -127,7 +127,7 @@ def run_spec(args: argparse.Namespace) -> Any:
     """The :class:`RunSpec` the options ask for (``--set``, ``--seed``, ``--prior``,
     ``--no-depth``, ``--iterations``, ``--time-budget``, ``--preset``)."""
     from sparsesplat.engine.train.config import ConfigError
-    from sparsesplat.engine.train.overrides import parse_override, resolve
+    from sparsesplat.engine.train.config.overrides import parse_override, resolve
     from sparsesplat.engine.train.run import RunSpec
 
     overrides: dict[str, Any] = {}

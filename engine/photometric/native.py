@@ -196,10 +196,10 @@ def warp_l1_native(
     min_alpha: float,
     occlusion_tolerance: float,
 ) -> Tensor:
-    """``engine.train.consistency.warp_consistency_loss`` in one native pass: ``depth`` and
-    ``alpha`` (H, W) (differentiable), the (3, H, W) and (3, Hs, Ws) photos, the source's seen
-    depth (Hs, Ws) or None, each camera's (fx, fy, cx, cy), and the reference-to-source
-    ``rotation`` (3, 3) and ``translation`` (3,)."""
+    """``engine.train.regularizers.consistency.warp_consistency_loss`` in one native pass:
+    ``depth`` and ``alpha`` (H, W) (differentiable), the (3, H, W) and (3, Hs, Ws) photos, the
+    source's seen depth (Hs, Ws) or None, each camera's (fx, fy, cx, cy), and the
+    reference-to-source ``rotation`` (3, 3) and ``translation`` (3,)."""
     return _WarpL1.apply(
         depth.contiguous(),
         None if alpha is None else alpha.contiguous(),

@@ -1,4 +1,7 @@
-"""Training: config and presets, the DNGaussian trainer, progress events, checkpoints.
+"""Training: config and presets (``config/``), the DNGaussian trainer and the parts every run
+builds (``loop/``), the optional regularizer parts (``regularizers/``), the initial Gaussians
+(``init/``) and the run recipe (``run.py``). The trained model itself (checkpoints, rendering,
+SH, exports) lives in ``engine/model/``.
 
 Public API used by the workers, the CLI and the benchmarks::
 
@@ -9,31 +12,22 @@ Public API used by the workers, the CLI and the benchmarks::
 or, one level down, ``Trainer(scene, preset("llff"), priors, out_dir).run()``.
 """
 
-from sparsesplat.engine.train.checkpoint import (
-    CheckpointError,
-    TrainedModel,
-    load_checkpoint,
-    load_model,
-)
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
-from sparsesplat.engine.train.presets import PRESET_ITERATIONS, PRESETS, preset
-from sparsesplat.engine.train.progress import ProgressRecord, StateChange
-from sparsesplat.engine.train.trainer import ModelCollapsed, Trainer, TrainResult, model_sh
+from sparsesplat.engine.train.config.presets import PRESET_ITERATIONS, PRESETS, preset
+from sparsesplat.engine.train.loop.densify import ModelCollapsed
+from sparsesplat.engine.train.loop.progress import ProgressRecord, StateChange
+from sparsesplat.engine.train.loop.result import TrainResult
+from sparsesplat.engine.train.loop.trainer import Trainer
 
 __all__ = [
     "PRESETS",
     "PRESET_ITERATIONS",
-    "CheckpointError",
     "ConfigError",
     "ModelCollapsed",
     "ProgressRecord",
     "StateChange",
     "TrainConfig",
     "TrainResult",
-    "TrainedModel",
     "Trainer",
-    "load_checkpoint",
-    "load_model",
-    "model_sh",
     "preset",
 ]

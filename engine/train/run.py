@@ -19,10 +19,10 @@ from typing import Any
 
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
-from sparsesplat.engine.train.overrides import resolve
-from sparsesplat.engine.train.presets import preset
-from sparsesplat.engine.train.progress import ProgressCallback
-from sparsesplat.engine.train.trainer import Trainer
+from sparsesplat.engine.train.config.overrides import resolve
+from sparsesplat.engine.train.config.presets import preset
+from sparsesplat.engine.train.loop.progress import ProgressCallback
+from sparsesplat.engine.train.loop.trainer import Trainer
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import torch
 
 from sparsesplat.engine.commands import train as train_cmd
 from sparsesplat.engine.train import PRESETS
-from sparsesplat.engine.train.presets import (
+from sparsesplat.engine.train.config.presets import (
     DEFAULT_TIME_LIMIT_S,
     LAYOUT_RECIPES,
     PRESET_ITERATIONS,

@@ -9,8 +9,8 @@ import torch
 
 from sparsesplat.engine.bench.iteration import measure_trained
 from sparsesplat.engine.datasets import load_scene
+from sparsesplat.engine.model.checkpoint import load_checkpoint
 from sparsesplat.engine.train import Trainer, preset
-from sparsesplat.engine.train.checkpoint import load_checkpoint
 from tests.cli.scenes import write_object_scene
 
 

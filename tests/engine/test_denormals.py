@@ -15,7 +15,7 @@ import torch
 from sparsesplat.engine.denormals import flush_denormals
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
-from tests.engine.train.test_trainer_parts import small
+from tests.engine.train.loop.test_trainer_parts import small
 
 _PROBE_SIZE = 1 << 20
 """Elements of the probe: far above torch's per-thread grain (32768), so two threads share it."""

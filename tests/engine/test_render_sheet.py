@@ -49,7 +49,7 @@ def test_rows_score_each_view_as_the_runs_own_evaluation(tmp_path: Path) -> None
 
     from sparsesplat.engine.bench.render_sheet import sheet_rows
     from sparsesplat.engine.metrics.evaluate import PSNR_CEILING, Evaluator
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.model import load_model
 
     scene_dir = write_object_scene(tmp_path / "scene", count=6, test=2, size=32, alpha=False)
     plain = load_scene(scene_dir)

@@ -19,7 +19,8 @@ def test_the_engine_config_takes_the_shared_literals() -> None:
     pytest.importorskip("torch")
     import typing
 
-    from sparsesplat.engine.train import config, presets
+    from sparsesplat.engine.train.config import presets
+    from sparsesplat.engine.train.config import sections as config
 
     assert typing.get_type_hints(config.ColorConfig)["model"] is names.ColorModelName
     assert typing.get_type_hints(config.InitConfig)["method"] is names.InitName
@@ -53,7 +54,7 @@ def test_artifact_files_and_export_suffixes_agree() -> None:
 def test_the_engine_writes_the_shared_artifact_names() -> None:
     pytest.importorskip("torch")
     from sparsesplat.engine.commands import render
-    from sparsesplat.engine.train import checkpoint
+    from sparsesplat.engine.model import checkpoint
 
     assert names.ARTIFACT_FILES["checkpoint"] == checkpoint.CHECKPOINT_NAME
     assert set(render.IMAGE_SUFFIXES) == set(names.IMAGE_OUTPUT_SUFFIXES)

@@ -59,7 +59,7 @@ def test_upload_train_stream_render_export(live: LiveService, mic_upload) -> Non
     served = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"), dtype=np.int16)
 
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.model import load_model
 
     run = live.data_dir / "jobs" / job["id"]
     scene = load_scene(run / "upload", format="folder")

@@ -70,7 +70,7 @@ def test_synthetic_upload_trains_and_renders(live: LiveService, tmp_path: Path) 
 
     # The service's render is the trained model's own render of that camera.
     from sparsesplat.engine.camera import Camera
-    from sparsesplat.engine.train import load_model
+    from sparsesplat.engine.model import load_model
 
     model = load_model(live.data_dir / "jobs" / job.id / "run")
     reference = model.render(Camera.from_wire(camera)).image.clamp(0, 1)

@@ -13,8 +13,8 @@ from sparsesplat.api.settings import Settings
 from sparsesplat.engine.commands import train as train_command
 from sparsesplat.engine.train import preset
 from sparsesplat.engine.train.config import ConfigError
-from sparsesplat.engine.train.overrides import flat_dict
-from sparsesplat.engine.train.presets import PRESET_ITERATIONS
+from sparsesplat.engine.train.config.overrides import flat_dict
+from sparsesplat.engine.train.config.presets import PRESET_ITERATIONS
 from sparsesplat.engine.train.run import plan_run
 from sparsesplat.worker.job_runner import build_config, run_spec
 

@@ -56,7 +56,7 @@ def replace_checkpoint_gaussians(path: Path, n: int = 50_000, seed: int = 0) -> 
     """Swap the Gaussians of the checkpoint at ``path`` for :func:`synthetic_gaussians` (its
     colour model stays: the neural field colours any positions), so that the render worker
     serves a model of ``n`` Gaussians; written atomically, as the trainer writes it."""
-    from sparsesplat.engine.train.checkpoint import load_checkpoint, save_checkpoint
+    from sparsesplat.engine.model.checkpoint import load_checkpoint, save_checkpoint
 
     state = load_checkpoint(path)
     g = synthetic_gaussians(n, seed)

@@ -37,8 +37,9 @@ def test_millimetre_copy_trains_like_the_metre_copy(tmp_path: Path) -> None:
 
 def test_checkpoints_from_before_the_unit_free_count_still_load() -> None:
     from sparsesplat.engine.train import TrainConfig
-    from tests.engine.train.test_config import legacy_flat_dict
+    from sparsesplat.engine.train.config.overrides import config_from_dict
+    from tests.engine.train.config.test_config import legacy_flat_dict
 
     old = {**legacy_flat_dict(_config()), "init_points_per_unit": 50.0}
     old.pop("init_points_density")
-    assert TrainConfig.from_dict(old).init.points_density == TrainConfig().init.points_density
+    assert config_from_dict(old).init.points_density == TrainConfig().init.points_density

@@ -14,9 +14,10 @@ from PIL import Image
 
 from sparsesplat.engine.commands import render as render_cmd
 from sparsesplat.engine.commands import train as train_cmd
+from sparsesplat.engine.model import load_model
 from sparsesplat.engine.synthetic import make_scene
-from sparsesplat.engine.train import Trainer, load_model
-from tests.engine.train.test_trainer import small
+from sparsesplat.engine.train import Trainer
+from tests.engine.train.loop.test_trainer import small
 
 
 def test_modules_do_not_import_torch() -> None:

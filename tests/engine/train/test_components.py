@@ -34,9 +34,9 @@ from sparsesplat.engine.train.config import (
     ConfigError,
     TrainConfig,
 )
-from sparsesplat.engine.train.overrides import parse_override
-from sparsesplat.engine.train.presets import PRESET_ITERATIONS, PRESETS, preset
-from sparsesplat.engine.train.schedule import position_lr
+from sparsesplat.engine.train.config.overrides import config_from_dict, parse_override
+from sparsesplat.engine.train.config.presets import PRESET_ITERATIONS, PRESETS, preset
+from sparsesplat.engine.train.loop.schedule import position_lr
 from tests.engine.numerics import FLOOR_ULPS, UNIT_ROUNDOFF, assert_float32_close
 
 from .colour_reference import field_reference
@@ -346,7 +346,7 @@ def test_position_lr_schedule() -> None:
 def test_presets_and_config_errors() -> None:
     for name in PRESETS:
         cfg = preset(name)
-        assert TrainConfig.from_dict(cfg.to_dict()) == cfg, name
+        assert config_from_dict(cfg.to_dict()) == cfg, name
     assert preset("dtu").depth.patch_min == 17 and preset("blender").depth.soft is False
     assert preset("llff", iterations=10).iterations == 10
     with pytest.raises(ConfigError, match="nonsense"):

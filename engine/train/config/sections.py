@@ -1,0 +1,446 @@
+"""The sections of the training configuration, one per part of the trainer.
+
+Values follow the DNGaussian reference code (dngaussian-method.md §1.5-§1.9); the defaults are
+its 6000-iteration LLFF recipe. Each part of the trainer takes its own section (``config.depth``
+goes to the depth regulariser, ``config.densify`` to the densification strategy, ...), so a
+setting is declared once; :class:`~sparsesplat.engine.train.config.train_config.TrainConfig`
+gathers them. The ``raster`` section is the model's (``engine/model/raster.py``): a stored
+model renders with it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from sparsesplat.api.names import ColorModelName, InitName
+from sparsesplat.engine.errors import ConfigError
+
+AuxiliaryStepName = Literal["separate", "joint"]
+"""How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
+ConsistencyPartnersName = Literal["nearest", "all"]
+"""Which training views the warp-consistency term warps into the current one."""
+PartnerDepthName = Literal["render", "last"]
+"""Where the warp-consistency term's occlusion check takes the partner view's depth from."""
+
+Box = tuple[tuple[float, float, float], tuple[float, float, float]]
+"""An axis-aligned box as (lowest corner, highest corner)."""
+
+
+@dataclass(frozen=True)
+class InitConfig:
+    """``init``: the initial Gaussians."""
+
+    method: InitName = "random"
+    """'random': uniform points in the init box (the reference). 'dense': the training
+    pixels whose metric depth is confident, back-projected (``engine/train/init/dense_init.py``);
+    the depth is the run's prior when it is metric (plane sweep), else a plane-sweep prior
+    computed for the init (cached under ``out_dir/priors``). SH colour takes the pixel colours
+    as DC. Falls back to 'random' with a warning (``metrics['init']``) when no pixel is
+    confident. 'sparse': the scene's sparse points (``Scene.sparse_points``, from the camera
+    estimation of photos uploaded without cameras) with their colours, topped up with jittered
+    copies to the point count; falls back to 'random' saying why when the scene has none.
+    'auto': 'dense' when the training cameras face forward, 'random' when they look inward
+    (``datasets.common.camera_layout``), the choice named in ``metrics['init']``."""
+    box: Box | None = None
+    """Box for random init; None uses the scene's ``init_box``, else one fitted to the frusta."""
+    points: int | None = None
+    """Number of random points; None: ``points_density`` x (largest side of the init box
+    / median distance from the training cameras to the box centre), clamped to
+    [``points_min``, ``points_max``]."""
+    points_density: float = 1000.0
+    """Automatic point count per "scene length" of the init box's largest side, the scene
+    length being the median camera-to-box-centre distance: a ratio of two lengths, so the
+    count does not depend on the scene's unit (the reference's 50 points per LLFF unit does).
+    1000 gives 1.0-1.7k points on the LLFF-format and instant-ngp scenes of shared/data, about
+    what the reference rule gave after its 1000-point floor."""
+    points_min: int = 1000
+    """Lower bound on the automatic point count."""
+    points_max: int = 100_000
+    """Upper bound on the automatic point count (CPU budget)."""
+    opacity: float = 0.1
+    """Initial opacity of every Gaussian."""
+    dense_points: int | None = None
+    """Number of points drawn for ``method='dense'`` (all confident pixels when fewer); None:
+    the random init's count (``points`` or the automatic count)."""
+    dense_min_confidence: float = 0.5
+    """Smallest prior confidence of a pixel used by ``method='dense'``."""
+    dense_min_points: int = 0
+    """Floor for ``method='dense'``: when fewer pixels than this (or than the target, if
+    smaller) pass ``dense_min_confidence``, the most confident pixels are taken instead, this
+    many (pixels of zero confidence never); the run's ``init`` note says how far the cut went
+    down. 0: no floor."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not 0.0 < self.opacity < 1.0:
+            raise ConfigError(f"init.opacity must be in (0, 1), got {self.opacity}")
+        if self.dense_points is not None and self.dense_points < 1:
+            raise ConfigError(f"init.dense_points must be >= 1, got {self.dense_points}")
+        if self.dense_min_points < 0:
+            raise ConfigError(f"init.dense_min_points must be >= 0, got {self.dense_min_points}")
+
+
+@dataclass(frozen=True)
+class ColorConfig:
+    """``color``: the colour model."""
+
+    model: ColorModelName = "neural"
+    """'neural' (hash grid + MLPs, DNGaussian) or 'sh' (per-Gaussian SH, 3DGS)."""
+    sh_degree: int = 3
+    """Maximum SH degree 0..3 for model 'sh' (ignored for 'neural')."""
+    sh_degree_interval: int = 1000
+    """Iterations between SH degree increases (3DGS schedule)."""
+    hash_log2_size: int = 19
+    """log2 of the hash table entries per level (reference 19)."""
+    hash_finest_resolution: int = 2048
+    """Finest grid resolution over the grid cube. Deviation: the reference uses 512 x bound
+    (scene-unit dependent); a fixed value keeps results independent of scene scale."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not 0 <= self.sh_degree <= 3:
+            raise ConfigError(f"color.sh_degree must be 0..3, got {self.sh_degree}")
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """``optim``: learning rates (Adam) and how the auxiliary passes step."""
+
+    lr_means_init: float = 0.016
+    """Initial centre LR, multiplied by the scene extent."""
+    lr_means_final: float = 0.00016
+    """Final centre LR, multiplied by the scene extent."""
+    lr_means_start: int = 500
+    """Iteration after which the centre LR starts its log-linear decay."""
+    lr_means_steps: int = 5500
+    """Length of the centre LR decay in iterations."""
+    lr_opacity: float = 0.05
+    """Opacity-logit LR."""
+    lr_scaling: float = 0.003
+    """Log-scale LR."""
+    lr_rotation: float = 0.001
+    """Quaternion LR."""
+    lr_hash_grid: float = 5e-3
+    """Hash table LR."""
+    lr_mlp: float = 5e-4
+    """LR of both MLPs."""
+    lr_sh: float = 0.0025
+    """SH DC LR (the rest uses lr_sh / 20, as 3DGS)."""
+    adam_eps: float = 1e-15
+    """Adam epsilon (reference value)."""
+    auxiliary_step: AuxiliaryStepName = "separate"
+    """'separate' (the reference code): the hard-depth, soft-depth and DTU background-alpha
+    passes each take their own step of the run's shared Adam optimizer before the photometric
+    step, so the centres get two Adam steps per iteration (and the hard step carries the
+    photometric momentum). 'joint' (the paper's single objective L = L_color + R_hard +
+    R_soft): their gradients are added to the photometric gradient and the iteration takes
+    one step."""
+
+    @property
+    def joint(self) -> bool:
+        """Whether the auxiliary passes leave their gradients for the photometric step."""
+        return self.auxiliary_step == "joint"
+
+
+@dataclass(frozen=True)
+class PhotometricConfig:
+    """``photometric``: the photometric loss and DNGaussian's Gaussian-shape regularizers."""
+
+    lambda_dssim: float = 0.2
+    """Weight of (1 - SSIM) added to L1."""
+    shape_weight: float = 0.002
+    """Weight of mean(max s / min s)."""
+    scale_weight: float = 0.001
+    """Weight of mean(max s²), with s measured in units of the scene extent (deviation: the
+    reference uses raw scene units, which makes the penalty depend on the scene's scale)."""
+    opacity_weight: float = 0.001
+    """Weight of the opacity penalty."""
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """``depth``: the depth prior and the hard/soft depth passes
+    (``regularizers/depth_regularizer.py``)."""
+
+    prior: str = "pydnet"
+    """Prior kind to compute ('pydnet', 'plane_sweep', 'onnx:FILE', 'user') or 'none' for no
+    depth loss. PyDNet++ is the default because it had the best AVGE of the three on DTU, LLFF
+    and Blender scenes (docs/experiments/)."""
+    min_agreement: float | None = None
+    """Skip the depth passes on the training views whose prior disagrees with the scene's own
+    multi-view geometry: the Spearman rank correlation between the prior and a plane-sweep
+    depth of the same view (on the sweep's confident pixels) below this. None: every view uses
+    its prior. A view with too few confident sweep pixels to judge keeps its prior; when every
+    view is skipped the depth part is not built at all (a no-depth run)."""
+    hard: bool = True
+    """Hard-depth pass (opacity 0.95, gradients to centres only)."""
+    soft: bool = True
+    """Soft-depth pass (real opacity, gradients to opacities only)."""
+    hard_opacity: float = 0.95
+    """Constant opacity of the hard-depth pass."""
+    hard_start: int = 0
+    """Hard depth runs for iterations > this."""
+    hard_downscale: int | None = 1
+    """Render the hard pass at 1/n of the training image's side, against the prior averaged
+    to that size, with the patch sides divided by n (same image fraction): n² fewer pixels
+    for a pass that only shapes the centres' depth. 1: the reference (full resolution).
+    None: 2 when the training cameras face forward, 1 when they look inward (on the
+    LLFF-format orbits 2 lost held-out PSNR; docs/experiments/2026-11-25-dense-init-llff.md)."""
+    soft_start: int = 1000
+    """Soft depth runs for iterations > this."""
+    every: int = 1
+    """Run the depth passes every n-th iteration (Blender: 10)."""
+    until: int | None = None
+    """Stop the depth passes at this iteration (Blender: densify.until); None = never."""
+    soft_fused: bool = True
+    """Compute the soft-depth term on the photometric render instead of a render of its own:
+    the rasterizer routes its gradient to the opacities alone (the same gradient as the
+    reference's detached pass) and it joins the photometric step (the paper's summed
+    objective). Saves one full render and backward per iteration. Deviation: with DropGaussian
+    on, the term sees the photometric render's kept Gaussians. False: the reference's separate
+    pass (``optim.auxiliary_step`` deciding its optimizer step)."""
+    soft_ema_gate: float | None = None
+    """DTU: take a soft step only while the EMA of the hard loss is below this; None = off."""
+    patch_min: int = 5
+    """Smallest patch side for the depth normalization (inclusive)."""
+    patch_max: int = 17
+    """Largest patch side (inclusive)."""
+    error_tolerance: float = 0.00025
+    """Margin of the error-tolerant L2 (residuals below it are ignored)."""
+    global_weight: float = 1.0
+    """Weight of the global-normalization term."""
+    local_weight: float = 0.1
+    """Weight of the local-normalization term (paper gamma)."""
+    smooth_weight: float = 0.1
+    """Weight of the prior-edge-aware depth smoothness (LLFF only in the reference); the
+    rendered depth enters in units of the scene extent (scale-free, a deviation)."""
+    smooth_start: int = 3000
+    """Smoothness applies for iterations > this."""
+    empty_background: bool = False
+    """On training pixels that show the pure background colour, replace the prior by its
+    nearest value: empty space renders depth 0 (depth is not alpha-normalized), so the target
+    agrees with it there instead of asking for geometry in the void (reference: Blender sets
+    the target to 0 on pure-white pixels)."""
+
+    @property
+    def used(self) -> bool:
+        """Whether any depth pass runs (a prior is needed)."""
+        return self.prior != "none" and (self.hard or self.soft)
+
+    @property
+    def patch_range(self) -> tuple[int, int]:
+        """Smallest and largest patch side of the local normalization (inclusive)."""
+        return (self.patch_min, self.patch_max)
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not 1 <= self.patch_min <= self.patch_max:
+            raise ConfigError(
+                f"depth patch range must satisfy 1 <= depth.patch_min <= depth.patch_max, got "
+                f"[{self.patch_min}, {self.patch_max}]"
+            )
+        if not 0.0 < self.hard_opacity < 1.0:
+            raise ConfigError(f"depth.hard_opacity must be in (0, 1), got {self.hard_opacity}")
+        if self.every < 1:
+            raise ConfigError(f"depth.every must be >= 1, got {self.every}")
+        if self.hard_downscale is not None and self.hard_downscale < 1:
+            raise ConfigError(f"depth.hard_downscale must be >= 1, got {self.hard_downscale}")
+        if self.min_agreement is not None and not -1.0 <= self.min_agreement <= 1.0:
+            raise ConfigError(
+                f"depth.min_agreement must be in [-1, 1] or None, got {self.min_agreement}"
+            )
+
+
+@dataclass(frozen=True)
+class DensifyConfig:
+    """``densify``: clone/split/prune, clean-views pruning and the opacity reset."""
+
+    start: int = 500
+    """Densify for iterations > this ..."""
+    until: int = 6000
+    """... and < this (gradient statistics and the opacity reset stop here too)."""
+    interval: int = 100
+    """Densify every n iterations."""
+    grad_threshold: float = 0.0013
+    """Mean screen-space gradient (NDC units, as the 3DGS rasterizer reports) to densify."""
+    percent_dense: float = 0.01
+    """Clone if max scale <= this x extent, else split."""
+    split_opacity_threshold: float = 0.1
+    """Only Gaussians with opacity above this are cloned or split."""
+    prune_opacity: float = 0.01
+    """Prune Gaussians with opacity below this at each densification."""
+    opacity_decay: float = 1.0
+    """Multiply every opacity by this after each optimizer step while densification runs
+    (schedule positions < ``until``): Gaussians the views do not keep re-asserting fade and
+    are pruned, so floaters do not survive (Binocular3DGS uses 0.995). 1 = off."""
+    opacity_reset_interval: int | None = None
+    """3DGS opacity reset period (Blender SH recipe: 3000); None = never."""
+    max_screen_size: float | None = None
+    """Prune Gaussians whose screen radius exceeds this many pixels (after the first opacity
+    reset); None = off (and no radii are tracked)."""
+    max_world_size: float | None = None
+    """Prune Gaussians larger than this x extent; None = off."""
+    max_gaussians: int | None = 300_000
+    """Cap on the number of Gaussians (CPU safety valve, not in the reference)."""
+    clean_iterations: tuple[int, ...] = (1,)
+    """Iterations at which Gaussians invisible from every training view are pruned."""
+
+    @property
+    def active(self) -> bool:
+        """Whether the strategy does anything in a run: statistics (and with them
+        densification and the opacity reset) need an iteration below ``until``."""
+        return self.until > 1 or bool(self.clean_iterations)
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if self.interval < 1:
+            raise ConfigError(f"densify.interval must be >= 1, got {self.interval}")
+        if not (math.isfinite(self.opacity_decay) and 0.0 < self.opacity_decay <= 1.0):
+            raise ConfigError(f"densify.opacity_decay must be in (0, 1], got {self.opacity_decay}")
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """``record``: evaluation, checkpoints, exports and profiling."""
+
+    eval_interval_s: float = 60.0
+    """Wall-clock seconds of training between held-out evaluations (0 disables the cadence)."""
+    eval_every: int | None = None
+    """Also evaluate every n iterations (deterministic cadence, mainly for tests)."""
+    eval_max_views: int | None = 4
+    """Evaluate at most this many held-out views during training, evenly spaced over the
+    held-out list (all of them at the end; None: all every time). Interim evaluations are
+    monitoring: on 9 LLFF views with LPIPS each costs ~10 s, 16% of a run at a 60 s cadence."""
+    eval_lpips: bool = True
+    """Compute LPIPS (and AVGE) when the weights are available."""
+    checkpoint_interval_s: float = 600.0
+    """Wall-clock seconds between checkpoints (0 disables; one is always written at the end)."""
+    export: bool = True
+    """Write .ply/.splat exports at the end (when the export module is present)."""
+    profile: bool = False
+    """Time each stage (depth passes, neural field, losses, optimizer) per iteration."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if self.eval_max_views is not None and self.eval_max_views < 1:
+            raise ConfigError(
+                f"record.eval_max_views must be >= 1 or None, got {self.eval_max_views}"
+            )
+
+
+def _default_step_limits() -> dict[str, float]:
+    return {"means": 0.25, "log_scales": 0.15, "quats": 0.1, "opacity_logits": 1.0}
+
+
+@dataclass(frozen=True)
+class GuardConfig:
+    """``guard``: the divergence checks (``loop/guard.py``)."""
+
+    check_every: int = 10
+    """Check every parameter group for non-finite values every n iterations."""
+    step_limits: dict[str, float] = field(default_factory=_default_step_limits)
+    """Per-group limit on the running mean |update| of one photometric Adam step (means in
+    units of the scene extent). Sane runs move ~10x less; a blow-up (e.g. learning rates 100x
+    too high) moves more and is stopped with TrainingDiverged naming the group."""
+
+
+@dataclass(frozen=True)
+class DropoutConfig:
+    """``dropout``: DropGaussian (``regularizers/dropout.py``), on in the ``llff`` and
+    ``default`` presets."""
+
+    enabled: bool = False
+    """Drop each Gaussian from the photometric render with probability ``rate``, compensating
+    the kept opacities by ``1 / (1 - rate)``. Evaluation, export and the depth passes render
+    every Gaussian."""
+    rate: float = 0.1
+    """The drop rate in [0, 1) reached at the last iteration (progressive) or used throughout."""
+    progressive: bool = True
+    """Grow the rate linearly from 0 to ``rate`` over the run (the paper) instead of a
+    constant rate (the authors' snippet)."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.rate) and 0.0 <= self.rate < 1.0):
+            raise ConfigError(f"dropout.rate must be in [0, 1), got {self.rate}")
+
+
+@dataclass(frozen=True)
+class DtuConfig:
+    """``dtu``: the DTU black-background handling of the reference
+    (``regularizers/dtu_background.py``): a per-view dark-background mask and the pieces below;
+    thresholds per scan from the scene name."""
+
+    enabled: bool = False
+    """Build the part (the switches below apply only then)."""
+    blacken_target: bool = True
+    """Set the masked target pixels to black in the photometric loss."""
+    depth_fill: bool = True
+    """Fill the masked pixels of rendered and prior depth with their foreground means in the
+    hard and soft depth passes."""
+    alpha_loss: bool = True
+    """A pass of its own (after the soft-depth pass) pushing the rendered alpha on the masked
+    pixels to 0; moves only opacities."""
+    black_white: bool = True
+    """The near-black / near-white Gaussian rule at each densification."""
+
+
+@dataclass(frozen=True)
+class ConsistencyConfig:
+    """``consistency``: the warp-consistency term (``regularizers/consistency.py``), added to the
+    photometric loss: the partner training views warped into the current one through the
+    rendered depth."""
+
+    weight: float = 0.0
+    """Weight of the term; 0 = off (the part is not built)."""
+    start: int = 0
+    """The term applies for iterations > this."""
+    occlusion: bool = True
+    """Check occlusion with the partner view's depth (``partner_depth`` says where from)."""
+    partner_depth: PartnerDepthName = "render"
+    """``render``: a no-gradient depth render of the partner view each time (one more pass per
+    partner and iteration); ``last``: the depth of the partner's own latest photometric
+    render, kept when that view was trained (free, and a few iterations old: with 3 views each
+    is trained every third iteration; with DropGaussian, the render of the Gaussians that
+    iteration kept). A partner not trained yet is rendered."""
+    partners: ConsistencyPartnersName = "nearest"
+    """``nearest``: the one training view whose camera centre is nearest; ``all``: every other
+    training view, the term being the mean over them (one more no-gradient depth render and
+    warp per extra partner)."""
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the term is on."""
+        return self.weight > 0
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.weight) and self.weight >= 0.0):
+            raise ConfigError(f"consistency.weight must be >= 0, got {self.weight}")
+
+
+@dataclass(frozen=True)
+class NearPruneConfig:
+    """``near_prune``: near-plane pruning of the reference's LLFF runs
+    (``regularizers/near_prune.py``): delete Gaussians close to the scene's render path in
+    training (the LLFF spiral; other formats: the training cameras) and leave those close to a
+    held-out camera out of its evaluation."""
+
+    enabled: bool = False
+    """Build the part."""
+    radius: float = 0.5
+    """The radius as a fraction of the scene's near bound (the reference's absolute 10 units
+    would delete most of a scene whose near bound is 1-3 units)."""
+    start: int = 2000
+    """The training-time prune runs for iterations > this ..."""
+    every: int = 25
+    """... on every this-many-th iteration."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.radius) and self.radius > 0.0):
+            raise ConfigError(f"near_prune.radius must be > 0, got {self.radius}")
+        if self.every < 1:
+            raise ConfigError(f"near_prune.every must be >= 1, got {self.every}")
