@@ -16,6 +16,12 @@ class Health(BaseModel):
     """Configured queue backend."""
     device: str
     """Configured compute device."""
+    disk: str = "ok"
+    """The data folder's disk: ``ok``, ``low`` (under twice the reserve: the next jobs may
+    wait for space) or ``full`` (under ``SPARSESPLAT_DISK_RESERVE_MB``: no job starts, uploads
+    are refused with 507)."""
+    disk_free_bytes: int | None = None
+    """Bytes free on the data folder's disk."""
 
 
 class ErrorBody(BaseModel):

@@ -12,11 +12,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.api.disk import remove_partial_files
 from sparsesplat.api.jobs import JobSpec, JobState, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.jobs import Claim, JobStore
 from sparsesplat.worker.camera_estimation import estimate_upload_cameras
+from sparsesplat.worker.disk_guard import WriteSites
 from sparsesplat.worker.heartbeat import JobHeartbeat
 
 log = logging.getLogger("sparsesplat.worker")
@@ -89,16 +91,28 @@ def run_job(
 
     spec = JobSpec.model_validate(claim.spec)
     run_dir = storage.run_dir(claim.job_id)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    sites = WriteSites(storage, claim.job_id)
+    beat.on_phase = sites.enter
     beat.start()
     try:
+        run_dir.mkdir(parents=True, exist_ok=True)
         return _train(claim, spec, store, storage, settings, run_dir, beat)
-    except EngineError as exc:
-        return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
     except MemoryError:
         return Outcome(JobState.failed, "ran out of memory: try smaller images or fewer Gaussians")
+    except Exception as exc:
+        # A write that failed (a full disk above all) fails the job naming the write, after
+        # its partial files are gone: never a worker that dies and a job left running.
+        written = sites.failure(exc, beat.trainer)
+        if written is not None:
+            log.error("job failed writing its files", extra={"error": written})
+            return Outcome(JobState.failed, public_message(written, storage, claim.job_id))
+        if isinstance(exc, EngineError):
+            return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
+        raise
     finally:
         beat.stop()
+        if not beat.lost:  # else the job runs elsewhere now, and its partial files are its own
+            remove_partial_files(storage.job_dir(claim.job_id))
 
 
 def _train(

@@ -11,18 +11,22 @@ import logging
 import os
 import signal
 import threading
+import time
 from types import FrameType
 
 import sqlalchemy as sa
 
+from sparsesplat.api.disk import is_disk_full
 from sparsesplat.api.jobs import JobState
 from sparsesplat.api.logs import job_context
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.database import make_engine
+from sparsesplat.api.store.jobs import Claim
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
+from sparsesplat.worker.disk_guard import DiskGate
 from sparsesplat.worker.heartbeat import JobHeartbeat
-from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.job_runner import Outcome, run_job
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -54,6 +58,7 @@ class TrainingWorker:
         self.store = PatientJobStore(self.engine, settings.max_attempts, settings.lease_s)
         self.storage = Storage(settings.data_dir)
         self.registry = WorkerRegistry(self.engine)
+        self.gate = DiskGate(self.store, self.storage, settings)
         self.worker_id = new_worker_id("train")
         self.current: JobHeartbeat | None = None
         self._stop = threading.Event()
@@ -78,11 +83,15 @@ class TrainingWorker:
                     break
                 try:
                     self.registry.beat(self.worker_id)
-                    claim = self.store.claim(self.worker_id, self.settings.lease_s)
-                except sa.exc.OperationalError:
-                    # The database is restarting: wait and poll again rather than exit (the
-                    # supervisor would restart the process, paying torch's import again).
-                    log.warning("database unreachable; waiting to claim", exc_info=True)
+                    claim = self._claim_next()
+                except sa.exc.OperationalError as exc:
+                    # The database is restarting (or its disk is full): wait and poll again
+                    # rather than exit (the supervisor would restart the process, paying
+                    # torch's import again).
+                    if is_disk_full(exc):
+                        log.error("cannot claim: the disk holding the job database is full")
+                    else:
+                        log.warning("database unreachable; waiting to claim", exc_info=True)
                     self._stop.wait(self.settings.poll_s)
                     continue
                 if claim is None:
@@ -98,20 +107,54 @@ class TrainingWorker:
                     )
                     outcome = run_job(claim, self.store, self.storage, self.settings, self.current)
                     self.current = None
-                    if outcome.state == JobState.queued:
-                        self.store.release(claim.job_id, self.worker_id, outcome.message)
-                    else:
-                        self.store.finish(
-                            claim.job_id, self.worker_id, outcome.state, outcome.message,
-                            outcome.result,
-                        )  # fmt: skip
-                    log.info("job ended", extra={"state": outcome.state.value})
+                    self._store_outcome(claim.job_id, outcome)
         finally:
             try:
                 self.registry.unregister(self.worker_id)
             except sa.exc.OperationalError:  # its registration expires by itself
                 log.warning("could not unregister the worker", exc_info=True)
         return done
+
+    def _claim_next(self) -> Claim | None:
+        """The oldest queued job, if its expected bytes fit on the disk (:class:`DiskGate`);
+        None when the queue is empty or its head waits for space."""
+        self.store.requeue_expired()
+        head = self.store.oldest_queued()
+        if head is None:
+            return None
+        job_id, spec, waiting_since = head
+        if not self.gate.may_start(job_id, spec, waiting_since):
+            return None
+        # Claim that very job (the one whose size was checked); another worker may take it
+        # first, and then this one looks again after its poll.
+        return self.store.claim_job(job_id, self.worker_id, self.settings.lease_s)
+
+    def _store_outcome(self, job_id: str, outcome: Outcome) -> None:
+        """Store how the job ended. While the database cannot take it (its disk full, say),
+        keep trying for up to ``disk_wait_s`` rather than die: the job would otherwise stay
+        ``running`` until its lease ran out. A job deleted meanwhile leaves no files."""
+        deadline = time.monotonic() + max(self.settings.disk_wait_s, self.settings.lease_s)
+        while True:
+            try:
+                if outcome.state == JobState.queued:
+                    self.store.release(job_id, self.worker_id, outcome.message)
+                else:
+                    self.store.finish(
+                        job_id, self.worker_id, outcome.state, outcome.message, outcome.result
+                    )
+                if self.store.owner_of(job_id) is None:  # deleted while it ran
+                    self.storage.delete_job(job_id)
+                break
+            except sa.exc.OperationalError as exc:
+                if time.monotonic() > deadline:
+                    log.error("could not store the job's outcome; its lease will run out",
+                              extra={"state": outcome.state.value})  # fmt: skip
+                    return
+                cause = "disk full" if is_disk_full(exc) else "database unreachable"
+                log.error("cannot store the job's outcome yet; retrying",
+                          extra={"error": str(exc.orig or exc), "cause": cause})  # fmt: skip
+                self._stop.wait(max(self.settings.poll_s, 1.0))
+        log.info("job ended", extra={"state": outcome.state.value})
 
     def _prepare_process(self) -> None:
         import torch

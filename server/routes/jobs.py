@@ -12,11 +12,14 @@ from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
+from sparsesplat.api.disk import disk_full_message, free_bytes, is_disk_full
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
 from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import new_job_id
 from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
+from sparsesplat.server.state import ServiceState
+from sparsesplat.server.storage_limits import check_submission, declared_length
 from sparsesplat.server.uploads import validate_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -107,13 +110,23 @@ async def submit_job(
             f"{settings.max_active_jobs_per_key} (SPARSESPLAT_MAX_ACTIVE_JOBS_PER_KEY)",
             {"Retry-After": "60"},
         )
+    # The key's limits and the disk's room, before anything is read or stored.
+    upload_bytes = declared_length(dict(request.headers))
+    await asyncio.to_thread(check_submission, service, owner, upload_bytes)
     try:
         form = await request.form(max_files=2 * settings.max_images + 4, max_fields=16)
     except MultiPartException as exc:
         raise invalid("invalid_upload", f"cannot read the multipart upload: {exc.message}") from exc
-    staging = service.storage.new_staging_dir()
     try:
-        upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        staging = service.storage.new_staging_dir()
+    except OSError as exc:
+        await form.close()
+        raise _no_room(exc, service, upload_bytes) from exc
+    try:
+        try:
+            upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        except OSError as exc:  # the staged files could not be written
+            raise _no_room(exc, service, upload_bytes) from exc
         # Files first, record second: a worker that claims the job finds its upload in place.
         job_id = new_job_id()
         service.storage.commit_upload(staging, job_id)
@@ -135,6 +148,16 @@ async def submit_job(
         await form.close()
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job
+
+
+def _no_room(exc: OSError, service: ServiceState, upload_bytes: int) -> Exception:
+    """507 for an upload the disk had no room for (its staged files are removed by the
+    caller); any other error as it was."""
+    if not is_disk_full(exc):
+        return exc
+    free = free_bytes(service.storage.root)
+    message = disk_full_message("receiving the upload", upload_bytes or None, free)
+    return ServiceError(507, "insufficient_storage", message, {"Retry-After": "60"})
 
 
 @router.get("", response_model=JobPage, summary="List your jobs")

@@ -6,6 +6,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
 from sparsesplat import __version__
+from sparsesplat.api.disk import disk_state
 from sparsesplat.api.schemas import Health, Readiness
 from sparsesplat.server.deps import ServiceDep
 
@@ -14,9 +15,14 @@ router = APIRouter(tags=["service"])
 
 @router.get("/healthz", response_model=Health)
 async def healthz(service: ServiceDep) -> Health:
-    """Liveness: answers as soon as the process serves HTTP (touches nothing else)."""
+    """Liveness: answers as soon as the process serves HTTP (touches nothing but a statvfs of
+    the data folder: a full disk is the first thing an operator wants to see)."""
     settings = service.settings
-    return Health(version=__version__, queue=settings.queue.value, device=settings.device.value)
+    disk = disk_state(service.storage.root, settings.disk_reserve_mb * 1_000_000)
+    return Health(
+        version=__version__, queue=settings.queue.value, device=settings.device.value,
+        disk=disk.status, disk_free_bytes=disk.free_bytes,
+    )  # fmt: skip
 
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": Readiness}})
