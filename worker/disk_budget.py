@@ -16,7 +16,7 @@ from sparsesplat.api.jobs import JobSpec
 
 log = logging.getLogger("sparsesplat.worker")
 
-TRAINING_BYTES_PER_GAUSSIAN = {"neural": 148, "sh": 724}
+TRAINING_BYTES_PER_GAUSSIAN = {"neural": 140, "sh": 716}
 """Bytes per Gaussian of a training checkpoint: its 11 float32 parameters (centre, scale,
 rotation, opacity; with SH colour also 48 SH coefficients), Adam's two moments of each, and
 the two densification accumulators."""
@@ -24,10 +24,10 @@ MODEL_BYTES_PER_GAUSSIAN = {"neural": 44, "sh": 236}
 """Bytes per Gaussian of a finished model (parameters only)."""
 EXPORT_BYTES_PER_GAUSSIAN = 248 + 32
 """``model.ply`` (62 float32 per Gaussian: degree-3 SH) plus ``model.splat`` (32 bytes)."""
-NEURAL_FIELD_TRAINING_BYTES = 98_000_000
-"""The neural colour field in a training checkpoint (hash tables and MLPs, with Adam's two
-moments) at ``color.hash_log2_size`` 19; it scales with the table size."""
-NEURAL_FIELD_MODEL_BYTES = 16_500_000
+NEURAL_FIELD_TRAINING_BYTES = 147_100_000
+"""The neural colour field in a training checkpoint at ``color.hash_log2_size`` 19: 49 MB of
+hash tables and MLPs and 98 MB of Adam's two moments of them; it scales with the table size."""
+NEURAL_FIELD_MODEL_BYTES = 24_550_000
 """The same field in a finished model (tables at half precision, no optimizer state)."""
 SMALL_FILES_BYTES = 2_000_000
 """Metrics, series, plot and depth-prior pictures: a bound."""

@@ -8,6 +8,7 @@ trainer to stop when the job was cancelled.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,9 @@ class Outcome:
     result: dict[str, Any] | None = None
     """Final metrics and sizes when it succeeded."""
 
+
+MODEL_PARTIAL_NAME = "model.pt.tmp"
+"""The finished model while it is written (renamed over ``checkpoint.pt`` when complete)."""
 
 SPEC_SWITCHES = {
     "depth_prior": "depth.prior",
@@ -212,16 +216,17 @@ def _keep_only_the_model(storage: Storage, job_id: str, run_dir: Path) -> int:
     tables at half precision), the run's scratch files go (cached priors, temporary
     files; the prior pictures stay, a route serves them). Returns the job's bytes
     on disk, upload included."""
-    from sparsesplat.engine.train.checkpoint import (
-        CHECKPOINT_NAME,
-        load_checkpoint,
-        model_state,
-        save_checkpoint,
-    )
+    import torch
+
+    from sparsesplat.engine.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, model_state
 
     checkpoint = run_dir / CHECKPOINT_NAME
     if checkpoint.is_file():
-        save_checkpoint(model_state(load_checkpoint(checkpoint)), checkpoint)
+        # Written beside the training checkpoint under its own partial name, then renamed over
+        # it: a failure here leaves the training checkpoint whole and names this write.
+        partial = run_dir / MODEL_PARTIAL_NAME
+        torch.save(model_state(load_checkpoint(checkpoint)), partial)
+        os.replace(partial, checkpoint)
     pictures = {storage.prior_picture(job_id, 0).parent}
     for path in sorted(run_dir.rglob("*"), reverse=True):  # files before their folders
         scratch = path.suffix == ".tmp" or (
