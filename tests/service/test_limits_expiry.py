@@ -11,7 +11,9 @@ import sys
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
+from PIL import Image
 
 from tests.service.disk import files_bytes, renders, wait_for
 from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, upload_parts, wait_state
@@ -32,6 +34,16 @@ def _usage(url: str, key: str) -> dict:
     return dict(answer.json())
 
 
+def _noisy_upload(folder: Path, size: int) -> Path:
+    """The mic upload at ``size`` pixels with its images replaced by noise (PNG cannot
+    compress it, so the upload is as large as its pixels)."""
+    write_mic_upload(folder, size=size)
+    rng = np.random.default_rng(0)
+    for path in folder.glob("*.png"):
+        Image.fromarray(rng.integers(0, 256, (size, size, 3), dtype=np.uint8)).save(path)
+    return folder
+
+
 def _on_disk(live: LiveService, job_ids: list[str]) -> int:
     return sum(files_bytes(live.data_dir / "jobs" / job_id) for job_id in job_ids)
 
@@ -39,7 +51,7 @@ def _on_disk(live: LiveService, job_ids: list[str]) -> int:
 def test_limits_name_the_limit_and_the_usage_and_delete_frees_at_once(
     tmp_path: Path, mic_upload: Path
 ) -> None:
-    big = write_mic_upload(tmp_path / "big", size=400)
+    big = _noisy_upload(tmp_path / "big", size=400)  # 5 incompressible PNGs: ~2.4 MB
     live = LiveService(
         tmp_path / "data",
         {
