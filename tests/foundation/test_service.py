@@ -72,7 +72,15 @@ def test_healthz_answers_200(service: str) -> None:
     response = httpx.get(f"{service}/healthz")
     assert response.status_code == 200
     body = response.json()
-    assert body == {"status": "ok", "version": __version__, "queue": "local", "device": "cpu"}
+    free = body.pop("disk_free_bytes")
+    assert body == {
+        "status": "ok",
+        "version": __version__,
+        "queue": "local",
+        "device": "cpu",
+        "disk": "ok",
+    }
+    assert isinstance(free, int) and free > 0
 
 
 def test_sdk_twins_agree(service: str) -> None:
