@@ -430,7 +430,7 @@ class JobStore:
         return held, bool(cancel)
 
     def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
-        """Append one event; returns its sequence number."""
+        """Append one event; returns its sequence number (0: the job no longer exists)."""
         with self.engine.begin() as conn:
             return self._append(conn, job_id, type_, data)
 
@@ -586,12 +586,17 @@ class JobStore:
 
     @staticmethod
     def _append(conn: sa.Connection, job_id: str, type_: str, data: dict[str, Any]) -> int:
+        """Store one event; its sequence number, or 0 when the job is gone (deleted while its
+        worker ran: the worker learns it from its heartbeat and stops; its last reports go
+        nowhere rather than ending the worker process)."""
         seq = conn.execute(
             jobs.update()
             .where(jobs.c.id == job_id)
             .values(last_seq=jobs.c.last_seq + 1)
             .returning(jobs.c.last_seq)
-        ).scalar_one()
+        ).scalar_one_or_none()
+        if seq is None:
+            return 0
         conn.execute(
             events.insert().values(
                 job_id=job_id, seq=seq, type=type_, time=time.time(), data=_json_safe(data)

@@ -153,5 +153,18 @@ def test_an_unpinned_model_expires_and_a_pinned_one_stays(tmp_path: Path, mic_up
         assert httpx.delete(f"{live.url}/v1/models/{kept['id']}/pin").status_code in (200, 404)
         gone = httpx.get(f"{live.url}/v1/models/{kept['id']}", timeout=30)
         assert gone.status_code == 404 and gone.json()["code"] == "model_expired"
+
+        # DELETE of a running job frees its bytes at once, and its worker, stopping, does
+        # not write them back.
+        running = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 3000})
+        folder = live.data_dir / "jobs" / running["id"]
+        wait_for(lambda: (folder / "run" / "checkpoint.pt").exists(), 180, "it checkpoints")
+        assert httpx.delete(f"{live.url}/v1/jobs/{running['id']}").status_code == 204
+        assert not folder.exists()
+        later = submit(live.url, mic_upload, FAST_SPEC)
+        assert wait_state(live.url, later["id"], TERMINAL)["state"] == "succeeded"
+        assert not folder.exists(), "the stopped worker removed what it wrote after the delete"
+        ids = [kept["id"], goes["id"], later["id"]]
+        assert httpx.get(live.url + "/v1/usage").json()["stored_bytes"] == _on_disk(live, ids)
     finally:
         live.stop()

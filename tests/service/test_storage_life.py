@@ -118,3 +118,13 @@ def test_partial_files_go_and_bytes_are_the_files(tmp_path: Path) -> None:
     assert [p.name for p in remove_partial_files(tmp_path / "job")] == ["checkpoint.pt.tmp"]
     assert tree_bytes(tmp_path / "job") == 1002
     assert tree_bytes(tmp_path / "absent") == 0
+
+
+def test_reports_of_a_deleted_job_go_nowhere(store: JobStore) -> None:
+    job_id = store.create(new_job_id(), "alice", JobSpec(), 3, 1)[0].id
+    assert store.claim_job(job_id, "w1", 30) is not None
+    store.delete(job_id)
+    assert store.add_event(job_id, "record", {"iteration": 1}) == 0
+    assert store.add_warning(job_id, "late") == 0
+    assert store.heartbeat(job_id, "w1", 30) == (False, False)
+    assert store.events_after(job_id) == []
