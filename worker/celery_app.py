@@ -50,6 +50,7 @@ from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.disk_guard import DiskGate
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.outcome import store_outcome
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -202,15 +203,11 @@ def run_delivered_job(job_id: str) -> str:
                 beat.request_shutdown()
             outcome = run_job(claim, process.store, process.storage, settings, beat)
             process.current = None
-            if outcome.state == JobState.queued:
-                process.store.release(job_id, process.worker_id, outcome.message)
-                if beat.shutting_down:
-                    _send_again(job_id)
-            else:
-                process.store.finish(
-                    job_id, process.worker_id, outcome.state, outcome.message, outcome.result
-                )
-            log.info("job ended", extra={"state": outcome.state.value})
+            stored = store_outcome(
+                process.store, process.storage, process.worker_id, job_id, outcome, settings
+            )
+            if stored and outcome.state == JobState.queued and beat.shutting_down:
+                _send_again(job_id)
             return outcome.state.value
     finally:
         process.current = None

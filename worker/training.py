@@ -11,13 +11,11 @@ import logging
 import os
 import signal
 import threading
-import time
 from types import FrameType
 
 import sqlalchemy as sa
 
 from sparsesplat.api.disk import is_disk_full
-from sparsesplat.api.jobs import JobState
 from sparsesplat.api.logs import job_context
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
@@ -26,7 +24,8 @@ from sparsesplat.api.store.jobs import Claim
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
 from sparsesplat.worker.disk_guard import DiskGate
 from sparsesplat.worker.heartbeat import JobHeartbeat
-from sparsesplat.worker.job_runner import Outcome, run_job
+from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.outcome import store_outcome
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -107,7 +106,10 @@ class TrainingWorker:
                     )
                     outcome = run_job(claim, self.store, self.storage, self.settings, self.current)
                     self.current = None
-                    self._store_outcome(claim.job_id, outcome)
+                    store_outcome(
+                        self.store, self.storage, self.worker_id, claim.job_id, outcome,
+                        self.settings, self._stop,
+                    )  # fmt: skip
         finally:
             try:
                 self.registry.unregister(self.worker_id)
@@ -128,33 +130,6 @@ class TrainingWorker:
         # Claim that very job (the one whose size was checked); another worker may take it
         # first, and then this one looks again after its poll.
         return self.store.claim_job(job_id, self.worker_id, self.settings.lease_s)
-
-    def _store_outcome(self, job_id: str, outcome: Outcome) -> None:
-        """Store how the job ended. While the database cannot take it (its disk full, say),
-        keep trying for up to ``disk_wait_s`` rather than die: the job would otherwise stay
-        ``running`` until its lease ran out. A job deleted meanwhile leaves no files."""
-        deadline = time.monotonic() + max(self.settings.disk_wait_s, self.settings.lease_s)
-        while True:
-            try:
-                if outcome.state == JobState.queued:
-                    self.store.release(job_id, self.worker_id, outcome.message)
-                else:
-                    self.store.finish(
-                        job_id, self.worker_id, outcome.state, outcome.message, outcome.result
-                    )
-                if self.store.owner_of(job_id) is None:  # deleted while it ran
-                    self.storage.delete_job(job_id)
-                break
-            except sa.exc.OperationalError as exc:
-                if time.monotonic() > deadline:
-                    log.error("could not store the job's outcome; its lease will run out",
-                              extra={"state": outcome.state.value})  # fmt: skip
-                    return
-                cause = "disk full" if is_disk_full(exc) else "database unreachable"
-                log.error("cannot store the job's outcome yet; retrying",
-                          extra={"error": str(exc.orig or exc), "cause": cause})  # fmt: skip
-                self._stop.wait(max(self.settings.poll_s, 1.0))
-        log.info("job ended", extra={"state": outcome.state.value})
 
     def _prepare_process(self) -> None:
         import torch
