@@ -19,6 +19,11 @@ DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 """``errno`` values meaning "no room": the device is full, or a quota is."""
 SQLITE_FULL = "database or disk is full"
 """SQLite's message for SQLITE_FULL (the database could not grow)."""
+NO_SPACE = "No space left on device"
+"""strerror(ENOSPC), as other layers quote it (PostgreSQL: ``could not extend file …: No space
+left on device``)."""
+PG_DISK_FULL = "53100"
+"""PostgreSQL's SQLSTATE ``disk_full``."""
 _TORCH_WRITER_FAILED = ("inline_container", "PytorchStreamWriter", "file write failed")
 """Words of the RuntimeError ``torch.save`` raises when a write fails: it carries no errno (on a
 full disk it reads like ``[enforce fail at inline_container.cc:672] . unexpected pos 704 vs
@@ -67,7 +72,9 @@ def is_disk_full(exc: BaseException, free: int | None = None, needed: int | None
         if isinstance(current, OSError) and current.errno in DISK_FULL_ERRNOS:
             return True
         text = str(current)
-        if SQLITE_FULL in text:
+        if SQLITE_FULL in text or NO_SPACE in text:
+            return True
+        if getattr(current, "sqlstate", None) == PG_DISK_FULL:
             return True
         writer_failed = isinstance(current, RuntimeError) and any(
             w in text for w in _TORCH_WRITER_FAILED

@@ -91,6 +91,10 @@ def test_full_disk_errors_are_told_from_others() -> None:
         "INSERT", {}, sqlite3.OperationalError("database or disk is full")
     )
     assert is_disk_full(full_db)
+    pg_full = sa.exc.OperationalError(
+        "INSERT", {}, RuntimeError('could not extend file "base/1/2": No space left on device')
+    )
+    assert is_disk_full(pg_full)
     locked = sa.exc.OperationalError("INSERT", {}, sqlite3.OperationalError("database is locked"))
     assert not is_disk_full(locked)
     # torch.save says only that its write failed: a full disk when the space is not there.
