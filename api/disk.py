@@ -39,6 +39,11 @@ def free_bytes(path: str | Path) -> int:
     return free if fake is None else min(free, fake)
 
 
+def disk_total_bytes(path: str | Path) -> int:
+    """Size of the filesystem holding ``path``."""
+    return shutil.disk_usage(path).total
+
+
 def tree_bytes(path: str | Path) -> int:
     """Bytes of the regular files under ``path`` (0 when it does not exist); links are not
     followed, so a file counts once, under the job that holds it."""
@@ -92,12 +97,18 @@ def disk_full_message(site: str, needed: int | None, free: int) -> str:
     return f"no space left on device while {site} ({need}{mb(free)} MB free)"
 
 
+def is_partial(path: Path) -> bool:
+    """Whether ``path`` is a file being written: ``*.tmp``, or ``*.tmp.<ext>`` (NumPy adds its
+    extension to the temporary name, as the depth-prior cache does)."""
+    return path.suffix == PARTIAL_SUFFIX or PARTIAL_SUFFIX + "." in path.name
+
+
 def remove_partial_files(folder: str | Path) -> list[Path]:
-    """Remove every ``*.tmp`` file under ``folder`` (writes a failure left half done);
-    returns what was removed."""
+    """Remove every partial file (:func:`is_partial`) under ``folder`` (writes a failure left
+    half done); returns what was removed."""
     removed = []
-    for path in Path(folder).rglob("*" + PARTIAL_SUFFIX):
-        if path.is_file():
+    for path in Path(folder).rglob("*" + PARTIAL_SUFFIX + "*"):
+        if is_partial(path) and path.is_file():
             path.unlink(missing_ok=True)
             removed.append(path)
     return removed

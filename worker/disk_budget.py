@@ -29,6 +29,9 @@ NEURAL_FIELD_TRAINING_BYTES = 147_100_000
 hash tables and MLPs and 98 MB of Adam's two moments of them; it scales with the table size."""
 NEURAL_FIELD_MODEL_BYTES = 24_550_000
 """The same field in a finished model (tables at half precision, no optimizer state)."""
+PRIOR_BYTES_PER_PIXEL = 8
+"""A cached depth prior: depth and confidence as float32 per training pixel (stored
+compressed: a bound)."""
 SMALL_FILES_BYTES = 2_000_000
 """Metrics, series, plot and depth-prior pictures: a bound."""
 DOUBLINGS_PER_DENSIFICATION = 1
@@ -73,15 +76,40 @@ def _field_bytes(at_19: int, color_model: str, hash_log2_size: int) -> int:
     return int(at_19 * 2 ** min(hash_log2_size - 19, 4))
 
 
-def config_bytes(config: Any) -> int:
+def config_bytes(config: Any, train_pixels: int = 0) -> int:
     """Peak bytes a run of ``config`` holds in its run folder: two training checkpoints while
     one replaces the other, or at the end the checkpoint, the exports and the model written
-    beside it, whichever is more; plus the small files."""
+    beside it, whichever is more; plus the small files and, for a run with a depth prior, its
+    cached priors (``train_pixels``: the training images' pixels)."""
     n = expected_gaussians(config)
     color, log2 = config.color.model, config.color.hash_log2_size
     checkpoint = checkpoint_bytes(color, n, log2)
     final = checkpoint + EXPORT_BYTES_PER_GAUSSIAN * n + model_bytes(color, n, log2)
-    return max(2 * checkpoint, final) + SMALL_FILES_BYTES
+    priors = PRIOR_BYTES_PER_PIXEL * train_pixels if config.uses_depth else 0
+    return max(2 * checkpoint, final) + priors + SMALL_FILES_BYTES
+
+
+def train_pixels(upload_dir: Path) -> int:
+    """Pixels of the upload's training images (read from their headers); every image of a
+    photos-only upload."""
+    import json
+
+    from PIL import Image
+
+    cameras = upload_dir / "cameras.json"
+    if cameras.is_file():
+        frames = json.loads(cameras.read_text())["frames"]
+        paths = [upload_dir / f["image"] for f in frames if f.get("split", "train") == "train"]
+    else:
+        paths = sorted((upload_dir / "images").glob("*"))
+    total = 0
+    for path in paths:
+        try:
+            with Image.open(path) as image:
+                total += image.width * image.height
+        except OSError:  # the job reports an unreadable image itself
+            continue
+    return total
 
 
 def expected_job_bytes(spec: JobSpec, upload_dir: Path) -> int:
@@ -104,10 +132,11 @@ def expected_job_bytes(spec: JobSpec, upload_dir: Path) -> int:
     specs = [spec] if spec.preset is not None or scene is not None else [
         spec.model_copy(update={"preset": name}) for name in PRESETS
     ]  # fmt: skip
+    pixels = train_pixels(upload_dir)
     estimates = []
     for candidate in specs:
         try:
-            estimates.append(config_bytes(plan_run(run_spec(candidate), scene).config))
+            estimates.append(config_bytes(plan_run(run_spec(candidate), scene).config, pixels))
         except (EngineError, ValueError):  # the job itself reports a bad spec when it runs
             continue
     return max(estimates, default=SMALL_FILES_BYTES)

@@ -23,6 +23,7 @@ from typing import Any
 
 from sparsesplat.api.disk import (
     disk_full_message,
+    disk_total_bytes,
     free_bytes,
     is_disk_full,
     mb,
@@ -169,6 +170,16 @@ class DiskGate:
         if free >= needed + reserve:
             self._expected.pop(job_id, None)
             return True
+        total = disk_total_bytes(self.storage.root)
+        if needed + reserve > total:  # it never will fit: waiting would only hold the queue
+            message = (
+                f"no space left on device to start this job (needs ~{mb(needed)} MB plus the "
+                f"{mb(reserve)} MB reserve; the data folder's disk holds {mb(total)} MB in all)"
+            )
+            if self.store.fail_queued(job_id, message):
+                log.error("job failed: it cannot fit on the disk", extra={"job_id": job_id})
+            self._expected.pop(job_id, None)
+            return False
         wait = self.settings.disk_wait_s
         if waiting_since is None:
             message = (

@@ -9,6 +9,7 @@ from typing import Any
 
 import httpx
 
+from sparsesplat.api.disk import is_partial
 from sparsesplat.api.faults import FAULTS_ENV
 
 CAMERA_KEYS = ("convention", "pose", "matrix", "fx", "fy", "cx", "cy", "width", "height")
@@ -34,8 +35,8 @@ class Faults:
 
 
 def partial_files(data_dir: Path) -> list[Path]:
-    """Every ``*.tmp`` file under the data folder."""
-    return sorted(data_dir.rglob("*.tmp"))
+    """Every partial file (``*.tmp``, ``*.tmp.npz``) under the data folder."""
+    return sorted(p for p in data_dir.rglob("*.tmp*") if is_partial(p))
 
 
 def renders(url: str, model_id: str) -> bytes:

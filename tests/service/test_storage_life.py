@@ -116,10 +116,13 @@ def test_partial_files_go_and_bytes_are_the_files(tmp_path: Path) -> None:
     run = tmp_path / "job" / "run"
     run.mkdir(parents=True)
     (run / "checkpoint.pt.tmp").write_bytes(b"x" * 100)
+    (run / "priors").mkdir()
+    (run / "priors" / "prior_a.npz.tmp.npz").write_bytes(b"x" * 10)
     (run / "checkpoint.pt").write_bytes(b"x" * 1000)
     (tmp_path / "job" / "cameras.json").write_bytes(b"{}")
-    assert tree_bytes(tmp_path / "job") == 1102
-    assert [p.name for p in remove_partial_files(tmp_path / "job")] == ["checkpoint.pt.tmp"]
+    assert tree_bytes(tmp_path / "job") == 1112
+    removed = sorted(p.name for p in remove_partial_files(tmp_path / "job"))
+    assert removed == ["checkpoint.pt.tmp", "prior_a.npz.tmp.npz"]
     assert tree_bytes(tmp_path / "job") == 1002
     assert tree_bytes(tmp_path / "absent") == 0
 
@@ -132,3 +135,32 @@ def test_reports_of_a_deleted_job_go_nowhere(store: JobStore) -> None:
     assert store.add_warning(job_id, "late") == 0
     assert store.heartbeat(job_id, "w1", 30) == (False, False)
     assert store.events_after(job_id) == []
+
+
+def test_the_sweep_removes_expired_models_and_stray_folders_only(tmp_path: Path) -> None:
+    import os
+
+    from sparsesplat.api.settings import Settings
+    from sparsesplat.server.expiry import STRAY_AGE_S, sweep
+    from sparsesplat.server.state import ServiceState
+
+    settings = Settings(data_dir=tmp_path / "data", model_ttl_days=0.4 / 86400)
+    service = ServiceState.open(settings)
+    try:
+        expired, pinned = _succeeded(service.jobs), _succeeded(service.jobs)
+        service.jobs.set_pinned(pinned, True)
+        stray_old, stray_new = new_job_id(), new_job_id()
+        for job_id in (expired, pinned, stray_old, stray_new):
+            (service.storage.run_dir(job_id)).mkdir(parents=True)
+            (service.storage.run_dir(job_id) / "checkpoint.pt").write_bytes(b"x" * 10)
+        old = time.time() - STRAY_AGE_S - 60
+        os.utime(service.storage.job_dir(stray_old), (old, old))
+        time.sleep(0.5)
+        assert sorted(sweep(service)) == sorted([expired, stray_old])
+        on_disk = set(service.storage.job_ids_on_disk())
+        assert on_disk == {pinned, stray_new}, "pinned models and young folders stay"
+        job = service.jobs.get(expired)
+        assert job is not None and job.expired and not job.has_model
+        assert sweep(service) == []
+    finally:
+        service.engine.dispose()
