@@ -52,4 +52,5 @@ def store_outcome(
                 return False
             log.error("cannot store the job's outcome yet; retrying",
                       extra={"error": str(exc.orig or exc), "cause": cause})  # fmt: skip
-            pause.wait(max(settings.poll_s, 1.0))
+            if pause.wait(max(settings.poll_s, 1.0)):  # the worker is stopping: the lease
+                return False  # re-queues the job, which resumes from its checkpoint
