@@ -121,12 +121,16 @@ async def submit_job(
         staging = service.storage.new_staging_dir()
     except OSError as exc:
         await form.close()
-        raise _no_room(exc, service, upload_bytes) from exc
+        if is_disk_full(exc):
+            raise _no_room(service, upload_bytes) from exc
+        raise
     try:
         try:
             upload = await asyncio.to_thread(validate_upload, form, settings, staging)
         except OSError as exc:  # the staged files could not be written
-            raise _no_room(exc, service, upload_bytes) from exc
+            if is_disk_full(exc):
+                raise _no_room(service, upload_bytes) from exc
+            raise
         # Files first, record second: a worker that claims the job finds its upload in place.
         job_id = new_job_id()
         service.storage.commit_upload(staging, job_id)
@@ -150,11 +154,9 @@ async def submit_job(
     return job
 
 
-def _no_room(exc: OSError, service: ServiceState, upload_bytes: int) -> Exception:
+def _no_room(service: ServiceState, upload_bytes: int) -> ServiceError:
     """507 for an upload the disk had no room for (its staged files are removed by the
-    caller); any other error as it was."""
-    if not is_disk_full(exc):
-        return exc
+    caller)."""
     free = free_bytes(service.storage.root)
     message = disk_full_message("receiving the upload", upload_bytes or None, free)
     return ServiceError(507, "insufficient_storage", message, {"Retry-After": "60"})
