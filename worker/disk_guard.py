@@ -28,6 +28,7 @@ from sparsesplat.api.disk import (
     is_disk_full,
     mb,
     remove_partial_files,
+    tree_bytes,
 )
 from sparsesplat.api.jobs import JobSpec
 from sparsesplat.api.settings import Settings
@@ -135,6 +136,10 @@ def _export_bytes(trainer: Any) -> int | None:
     return None if trainer is None else EXPORT_BYTES_PER_GAUSSIAN * len(trainer.gaussians)
 
 
+EXPECTED_CACHE = 1000
+"""Jobs whose expected bytes a gate remembers (then it forgets them all and starts again)."""
+
+
 class DiskGate:
     """Lets a queued job start only when its expected bytes fit (see the module's contract)."""
 
@@ -147,6 +152,8 @@ class DiskGate:
 
     def expected_bytes(self, job_id: str, spec: dict[str, Any]) -> int:
         """The job's expected bytes (computed once per job)."""
+        if len(self._expected) > EXPECTED_CACHE:
+            self._expected.clear()
         if job_id not in self._expected:
             from sparsesplat.worker.disk_budget import expected_job_bytes
 
@@ -165,10 +172,11 @@ class DiskGate:
         """Whether ``job_id`` (queued) fits now. When it does not, it is marked as waiting
         (once) or, after ``disk_wait_s`` of waiting, failed; either way False."""
         reserve = self.settings.disk_reserve_mb * 1_000_000
-        needed = self.expected_bytes(job_id, spec)
-        free = free_bytes(self.storage.root)
+        needed = self._still_to_write(job_id, spec)
+        # Jobs running beside it (other workers) will still grow: their room is taken.
+        promised = sum(self._still_to_write(i, s) for i, s in self.store.running_specs())
+        free = max(free_bytes(self.storage.root) - promised, 0)
         if free >= needed + reserve:
-            self._expected.pop(job_id, None)
             return True
         total = disk_total_bytes(self.storage.root)
         if needed + reserve > total:  # it never will fit: waiting would only hold the queue
@@ -178,7 +186,6 @@ class DiskGate:
             )
             if self.store.fail_queued(job_id, message):
                 log.error("job failed: it cannot fit on the disk", extra={"job_id": job_id})
-            self._expected.pop(job_id, None)
             return False
         wait = self.settings.disk_wait_s
         if waiting_since is None:
@@ -198,5 +205,9 @@ class DiskGate:
             )
             if self.store.fail_queued(job_id, message):
                 log.error("job failed: no disk space to start", extra={"job_id": job_id})
-            self._expected.pop(job_id, None)
         return False
+
+    def _still_to_write(self, job_id: str, spec: dict[str, Any]) -> int:
+        """Expected bytes of the job less what its run folder holds already (a job resumed
+        after its worker died has its checkpoint on disk)."""
+        return max(self.expected_bytes(job_id, spec) - tree_bytes(self.storage.run_dir(job_id)), 0)

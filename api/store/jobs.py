@@ -295,6 +295,14 @@ class JobStore:
             ).first()
         return None if row is None else (row.id, dict(row.spec), row.disk_wait_since)
 
+    def running_specs(self) -> list[tuple[str, dict[str, Any]]]:
+        """(id, spec) of every running job (their disk use still grows)."""
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.id, jobs.c.spec).where(jobs.c.state == JobState.running.value)
+            ).all()
+        return [(r.id, dict(r.spec)) for r in rows]
+
     def spec_of_queued(self, job_id: str) -> tuple[dict[str, Any], float | None] | None:
         """(spec, waiting-for-disk-since) of ``job_id`` if it is queued, else None."""
         with self.engine.begin() as conn:
