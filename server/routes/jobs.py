@@ -8,6 +8,7 @@ import io
 import json
 from typing import Annotated
 
+import sqlalchemy.exc
 from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
@@ -197,10 +198,22 @@ def cancel_job(job: OwnJobDep, service: ServiceDep) -> Job:
 
 @router.delete("/{job_id}", status_code=204, summary="Delete a job and every file of it")
 def delete_job(job: OwnJobDep, service: ServiceDep) -> Response:
-    """Cancels it if needed, then removes its record, events, uploads, model and exports."""
-    if not job.state.terminal:
-        service.jobs.request_cancel(job.id)
-    service.jobs.delete(job.id)
+    """Cancels it if needed, then removes its record, events, uploads, model and exports.
+    On a full disk its files go first, so that the database has room to forget it (a 507 if
+    it still has not: the files are gone all the same, and a retry removes the record)."""
+
+    def forget() -> None:
+        if not job.state.terminal:
+            service.jobs.request_cancel(job.id)
+        service.jobs.delete(job.id)
+
+    try:
+        forget()
+    except sqlalchemy.exc.OperationalError as exc:
+        if not is_disk_full(exc):
+            raise
+        service.storage.delete_job(job.id)
+        forget()
     service.storage.delete_job(job.id)
     return Response(status_code=204)
 

@@ -81,7 +81,17 @@ def test_uploads_and_the_job_database_refuse_with_507_and_keep_nothing(
         assert list(staging.iterdir()) == [] and partial_files(live.data_dir) == []
         faults.set()
         assert httpx.get(live.url + "/healthz").json()["disk"] == "ok"
-        assert _post_job(live.url, mic_upload).status_code == 201
+        job = _post_job(live.url, mic_upload).json()
+
+        # DELETE on a full database frees the files all the same (507: the record stays until
+        # a retry, which succeeds once the database has room).
+        faults.set("sqlite DELETE FROM events*")
+        answer = httpx.delete(f"{live.url}/v1/jobs/{job['id']}")
+        assert answer.status_code == 507, answer.text
+        assert not (live.data_dir / "jobs" / job["id"]).exists()
+        faults.set()
+        assert httpx.delete(f"{live.url}/v1/jobs/{job['id']}").status_code == 204
+        assert httpx.get(f"{live.url}/v1/jobs/{job['id']}").status_code == 404
     finally:
         live.stop()
 
