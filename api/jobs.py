@@ -232,6 +232,12 @@ class Job(BaseModel):
     """What training found wrong that the upload could not show (e.g. held-out renders that
     stay empty, or a model no better than a constant image: usually poses read the wrong way).
     A job can succeed with warnings; each one is also a ``warning`` event."""
+    pinned: bool = False
+    """Whether its model is kept past the service's model expiry (``PUT /v1/models/{id}/pin``)."""
+    expires_at: datetime | None = None
+    """When its model expires (a succeeded, unpinned job on a service with a model expiry)."""
+    expired: bool = False
+    """Whether its model has expired: its files are gone and its model answers 404."""
 
 
 class JobPage(BaseModel):
@@ -292,3 +298,7 @@ class ModelInfo(BaseModel):
     depth_priors: int = 0
     """Training views whose depth prior ``GET /v1/jobs/{id}/priors/{k}`` serves as a picture
     (k = 0 .. depth_priors - 1; 0 when the job used no prior)."""
+    pinned: bool = False
+    """Whether it is kept past the service's model expiry."""
+    expires_at: datetime | None = None
+    """When it expires (None: pinned, or the service keeps models for good)."""

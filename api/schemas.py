@@ -21,6 +21,12 @@ class Health(BaseModel):
     None when this server has no local build (GPU or remote workers)."""
     kernels_detail: str | None = None
     """One line on the build: seconds so far, the variants (AVX2/AVX-512) or the error."""
+    disk: str = "ok"
+    """The data folder's disk: ``ok``, ``low`` (under twice the reserve: the next jobs may
+    wait for space) or ``full`` (under ``SPARSESPLAT_DISK_RESERVE_MB``: no job starts, uploads
+    are refused with 507)."""
+    disk_free_bytes: int | None = None
+    """Bytes free on the data folder's disk."""
 
 
 class ErrorBody(BaseModel):

@@ -117,6 +117,26 @@ class Settings(BaseSettings):
     """Starts allowed for a job whose worker keeps dying, before it fails."""
     readiness_max_age_s: float = Field(30.0, gt=0)
     """``/readyz`` wants a worker heartbeat at most this old."""
+    disk_reserve_mb: int = Field(64, ge=0)
+    """Free space (MB) always left on the data folder's disk: a job starts only when its
+    expected bytes fit above it, an upload is refused below it, and ``/healthz`` reports the
+    disk ``full`` under it (``low`` under twice it)."""
+    disk_wait_s: float = Field(600.0, ge=0)
+    """How long the oldest queued job waits for disk space to start (the jobs behind it wait
+    with it) before it fails, naming what it needs and what is free; while it waits, space
+    freed by a DELETE, an expiry or an operator lets it start."""
+    max_stored_mb_per_key: int = Field(0, ge=0)
+    """Bytes (MB) one API key's jobs may hold on disk (uploads, checkpoints, models, exports):
+    a submission over it is refused with 413. 0: no limit."""
+    max_jobs_per_key: int = Field(0, ge=0)
+    """Jobs one API key may keep stored, whatever their state (delete some to submit more):
+    429 beyond. 0: no limit."""
+    model_ttl_days: float = Field(0.0, ge=0)
+    """Days a model (a succeeded job) is kept after it finished, unless pinned: then its files
+    are removed and it answers 404 ``expired``. 0: models never expire."""
+    sweep_interval_s: float = Field(60.0, gt=0)
+    """Seconds between the server's sweeps for expired models and for files whose job record
+    is gone."""
 
     @model_validator(mode="after")
     def _fill_database_url(self) -> Settings:

@@ -48,6 +48,14 @@ COMMANDS: dict[str, Command] = {
     ),
     "cancel": Command("sparsesplat.client.commands.cancel", "cancel a job", None),
     "delete": Command("sparsesplat.client.commands.delete", "delete a job and its files", None),
+    "usage": Command(
+        "sparsesplat.client.commands.usage",
+        "your key's stored bytes and jobs, and its limits",
+        None,
+    ),
+    "pin": Command(
+        "sparsesplat.client.commands.pin", "keep a model past expiry (--off: let it expire)", None
+    ),
     "scene": Command(
         "sparsesplat.engine.commands.scene",
         "inspect a scene folder: split, cameras, background, the preset train would choose",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -14,12 +16,14 @@ from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sparsesplat import __version__
+from sparsesplat.api.disk import disk_full_message, free_bytes, is_disk_full
 from sparsesplat.api.schemas import ErrorBody
 from sparsesplat.api.settings import Settings, load_settings
 from sparsesplat.server.auth import Authenticator
 from sparsesplat.server.errors import ServiceError
+from sparsesplat.server.expiry import sweep_forever
 from sparsesplat.server.limits import BodySizeLimit
-from sparsesplat.server.routes import events, jobs, live, models, pages, service
+from sparsesplat.server.routes import events, jobs, live, models, pages, service, usage
 from sparsesplat.server.state import ServiceState
 
 log = logging.getLogger("sparsesplat.server")
@@ -52,7 +56,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.authenticator = Authenticator(settings, state.keys)
         log.info("service started", extra={"data_dir": str(settings.data_dir),
                                            "queue": settings.queue.value})  # fmt: skip
+        sweeper = asyncio.create_task(sweep_forever(state))
         yield
+        sweeper.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await sweeper
         await state.close()
         log.info("service stopped")
 
@@ -89,6 +97,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(sqlalchemy.exc.OperationalError)
     async def _database_down(request: Request, exc: Exception) -> JSONResponse:
+        if is_disk_full(exc):  # nothing was stored: the transaction rolled back
+            log.error("the job database's disk is full", extra={"path": request.url.path})
+            message = disk_full_message(
+                "committing to the job database", None, free_bytes(settings.data_dir)
+            )
+            return _error(507, "insufficient_storage", message, {"Retry-After": "60"})
         log.warning("database unavailable", exc_info=True)
         message = "the job database is not answering; try again shortly"
         return _error(503, "database_unavailable", message, {"Retry-After": "5"})
@@ -98,7 +112,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.exception("unhandled error", extra={"path": request.url.path})
         return _error(500, "internal_error", f"the server failed: {type(exc).__name__}")
 
-    for router in (service.router, jobs.router, events.router, models.router, live.router):
+    routers = (service.router, jobs.router, events.router, models.router, live.router, usage.router)
+    for router in routers:
         app.include_router(router)
     app.include_router(pages.router)
     return app

@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     """Migrate the database, start the workers, serve HTTP until interrupted."""
     import uvicorn
 
+    from sparsesplat.api import faults
     from sparsesplat.api.logs import configure_logging
     from sparsesplat.api.settings import load_settings
     from sparsesplat.api.store.database import make_engine, migrate
@@ -49,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     }
     settings = load_settings(**overrides)
     configure_logging(settings.log_level, json_lines=settings.log_json)
+    faults.install()  # tests only (SPARSESPLAT_TEST_FAULTS_FILE)
     assert settings.database_url is not None
     engine = make_engine(settings.database_url)
     migrate(engine)

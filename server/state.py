@@ -49,7 +49,7 @@ class ServiceState:
         assert settings.database_url is not None
         engine = make_engine(settings.database_url)
         migrate(engine)
-        jobs = JobStore(engine, settings.max_attempts)
+        jobs = JobStore(engine, settings.max_attempts, settings.model_ttl_days * 86400)
         registry = WorkerRegistry(engine)
         return cls(
             settings=settings,

@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 
+from sparsesplat.api import faults
 from sparsesplat.api.logs import configure_logging
 from sparsesplat.api.settings import QueueBackend, Settings, load_settings
 
@@ -33,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     settings = load_settings()
     configure_logging(settings.log_level, json_lines=settings.log_json)
+    faults.install(with_torch=args.kind == "train")  # tests only (SPARSESPLAT_TEST_FAULTS_FILE)
     if args.kind == "train" and settings.queue == QueueBackend.celery:
         return run_celery_node(settings, args.concurrency)
     if args.kind == "train":

@@ -33,6 +33,7 @@ import logging
 import os
 import signal
 import threading
+import time
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any
@@ -46,8 +47,10 @@ from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.broker import TRAIN_TASK, make_celery, send_job
 from sparsesplat.api.store.database import make_engine
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
+from sparsesplat.worker.disk_guard import DiskGate
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
+from sparsesplat.worker.outcome import store_outcome
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -77,6 +80,7 @@ class PoolProcess:
         self.store = PatientJobStore(self.engine, self.settings.max_attempts, self.settings.lease_s)
         self.storage = Storage(self.settings.data_dir)
         self.registry = WorkerRegistry(self.engine)
+        self.gate = DiskGate(self.store, self.storage, self.settings)
         self._stop = threading.Event()
         self._beats = threading.Thread(target=self._beat, name="worker-heartbeat", daemon=True)
 
@@ -170,6 +174,8 @@ def _on_node_shutdown(**_: Any) -> None:
 def run_delivered_job(job_id: str) -> str:
     """Claim and run ``job_id``; returns the state it ended in, or ``dropped``."""
     process = pool_process()
+    if not _fits_on_disk(process, job_id):
+        return "waiting for disk space"
     claim = process.store.claim_job(job_id, process.worker_id, settings.lease_s)
     if claim is None:
         log.info("message dropped: the job is not queued", extra={"job_id": job_id})
@@ -197,21 +203,41 @@ def run_delivered_job(job_id: str) -> str:
                 beat.request_shutdown()
             outcome = run_job(claim, process.store, process.storage, settings, beat)
             process.current = None
-            if outcome.state == JobState.queued:
-                process.store.release(job_id, process.worker_id, outcome.message)
-                if beat.shutting_down:
-                    _send_again(job_id)
-            else:
-                process.store.finish(
-                    job_id, process.worker_id, outcome.state, outcome.message, outcome.result
-                )
-            log.info("job ended", extra={"state": outcome.state.value})
+            stored = store_outcome(
+                process.store, process.storage, process.worker_id, job_id, outcome, settings
+            )
+            if stored and outcome.state == JobState.queued and beat.shutting_down:
+                _send_again(job_id)
             return outcome.state.value
     finally:
         process.current = None
         process.job_id = None
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+
+
+DISK_WAIT_IN_TASK_S = 30.0
+"""Seconds a task waits for disk space for its job before sending the job again (so that a
+pool process is not held for the whole wait, nor a new one forked every poll)."""
+
+
+def _fits_on_disk(process: PoolProcess, job_id: str) -> bool:
+    """Whether ``job_id`` may start (:class:`DiskGate`): a queued job that does not fit is
+    checked again for a while, then sent again (or failed by the gate after
+    ``disk_wait_s``); False then. A job that is not queued passes: ``claim_job`` drops it."""
+    deadline = time.monotonic() + DISK_WAIT_IN_TASK_S
+    while True:
+        queued = process.store.spec_of_queued(job_id)
+        if queued is None:
+            return True
+        spec, waiting_since = queued
+        if process.gate.may_start(job_id, spec, waiting_since):
+            return True
+        if time.monotonic() > deadline:
+            if process.store.spec_of_queued(job_id) is not None:
+                _send_again(job_id)
+            return False
+        time.sleep(settings.poll_s)
 
 
 def _send_again(job_id: str) -> None:

@@ -12,8 +12,10 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
+from sparsesplat.api.disk import is_disk_full
 from sparsesplat.api.jobs import CameraEstimation, JobState, Progress, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.store.jobs import JobStore
@@ -50,6 +52,8 @@ class JobHeartbeat:
         self._cancel_seen_at: float | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name=f"heartbeat-{job_id}", daemon=True)
+        self.on_phase: Callable[[str], None] | None = None
+        """Called with each new phase (the job runner follows what the job writes)."""
 
     def start(self) -> None:
         """Start beating (the first beat happens at once)."""
@@ -82,6 +86,13 @@ class JobHeartbeat:
     def set_phase(self, phase: str) -> None:
         """What the worker does now (shown in the job's progress)."""
         self._phase = phase
+        if self.on_phase is not None:
+            self.on_phase(phase)
+
+    @property
+    def trainer(self) -> Any:
+        """The trainer followed (None before :meth:`attach`)."""
+        return self._trainer
 
     def set_preset(self, name: str, reason: str | None) -> None:
         """The recipe in use and, when chosen from the scene, why."""
@@ -121,8 +132,14 @@ class JobHeartbeat:
         while True:
             try:
                 self._beat()
-            except Exception:  # the database may be restarting: keep trying until the lease ends
-                log.warning("heartbeat failed", exc_info=True, extra={"job_id": self.job_id})
+            except Exception as exc:  # the database may be restarting: keep trying until the
+                # lease ends. A full disk is the operator's to fix: said loudly, not as a blip.
+                if is_disk_full(exc):
+                    log.error("heartbeat failed: the disk holding the job database is full; "
+                              "the job's lease runs out unless space returns",
+                              extra={"job_id": self.job_id, "error": str(exc)})  # fmt: skip
+                else:
+                    log.warning("heartbeat failed", exc_info=True, extra={"job_id": self.job_id})
             if self._stop.wait(self.settings.heartbeat_s):
                 return
 

@@ -8,15 +8,18 @@ trainer to stop when the job was cancelled.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.api.disk import remove_partial_files
 from sparsesplat.api.jobs import JobSpec, JobState, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.jobs import Claim, JobStore
 from sparsesplat.worker.camera_estimation import estimate_upload_cameras
+from sparsesplat.worker.disk_guard import WriteSites
 from sparsesplat.worker.heartbeat import JobHeartbeat
 
 log = logging.getLogger("sparsesplat.worker")
@@ -33,6 +36,9 @@ class Outcome:
     result: dict[str, Any] | None = None
     """Final metrics and sizes when it succeeded."""
 
+
+MODEL_PARTIAL_NAME = "model.pt.tmp"
+"""The finished model while it is written (renamed over ``checkpoint.pt`` when complete)."""
 
 SPEC_SWITCHES = {
     "depth_prior": "depth.prior",
@@ -89,16 +95,28 @@ def run_job(
 
     spec = JobSpec.model_validate(claim.spec)
     run_dir = storage.run_dir(claim.job_id)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    sites = WriteSites(storage, claim.job_id)
+    beat.on_phase = sites.enter
     beat.start()
     try:
+        run_dir.mkdir(parents=True, exist_ok=True)
         return _train(claim, spec, store, storage, settings, run_dir, beat)
-    except EngineError as exc:
-        return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
     except MemoryError:
         return Outcome(JobState.failed, "ran out of memory: try smaller images or fewer Gaussians")
+    except Exception as exc:
+        # A write that failed (a full disk above all) fails the job naming the write, after
+        # its partial files are gone: never a worker that dies and a job left running.
+        written = sites.failure(exc, beat.trainer)
+        if written is not None:
+            log.error("job failed writing its files", extra={"error": written})
+            return Outcome(JobState.failed, public_message(written, storage, claim.job_id))
+        if isinstance(exc, EngineError):
+            return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
+        raise
     finally:
         beat.stop()
+        if not beat.lost:  # else the job runs elsewhere now, and its partial files are its own
+            remove_partial_files(storage.job_dir(claim.job_id))
 
 
 def _train(
@@ -198,16 +216,21 @@ def _keep_only_the_model(storage: Storage, job_id: str, run_dir: Path) -> int:
     tables at half precision), the run's scratch files go (cached priors, temporary
     files; the prior pictures stay, a route serves them). Returns the job's bytes
     on disk, upload included."""
+    import torch
+
     from sparsesplat.engine.model.checkpoint import (
         CHECKPOINT_NAME,
         load_checkpoint,
         model_state,
-        save_checkpoint,
     )
 
     checkpoint = run_dir / CHECKPOINT_NAME
     if checkpoint.is_file():
-        save_checkpoint(model_state(load_checkpoint(checkpoint)), checkpoint)
+        # Written beside the training checkpoint under its own partial name, then renamed over
+        # it: a failure here leaves the training checkpoint whole and names this write.
+        partial = run_dir / MODEL_PARTIAL_NAME
+        torch.save(model_state(load_checkpoint(checkpoint)), partial)
+        os.replace(partial, checkpoint)
     pictures = {storage.prior_picture(job_id, 0).parent}
     for path in sorted(run_dir.rglob("*"), reverse=True):  # files before their folders
         scratch = path.suffix == ".tmp" or (

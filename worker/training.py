@@ -15,15 +15,18 @@ from types import FrameType
 
 import sqlalchemy as sa
 
-from sparsesplat.api.jobs import JobState
+from sparsesplat.api.disk import is_disk_full
 from sparsesplat.api.logs import job_context
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.database import make_engine
+from sparsesplat.api.store.jobs import Claim
 from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
+from sparsesplat.worker.disk_guard import DiskGate
 from sparsesplat.worker.heartbeat import JobHeartbeat
 from sparsesplat.worker.job_runner import run_job
 from sparsesplat.worker.kernels import prepare_kernels
+from sparsesplat.worker.outcome import store_outcome
 from sparsesplat.worker.patient_store import PatientJobStore
 
 log = logging.getLogger("sparsesplat.worker")
@@ -55,6 +58,7 @@ class TrainingWorker:
         self.store = PatientJobStore(self.engine, settings.max_attempts, settings.lease_s)
         self.storage = Storage(settings.data_dir)
         self.registry = WorkerRegistry(self.engine)
+        self.gate = DiskGate(self.store, self.storage, settings)
         self.worker_id = new_worker_id("train")
         self.current: JobHeartbeat | None = None
         self._stop = threading.Event()
@@ -81,11 +85,15 @@ class TrainingWorker:
                     break
                 try:
                     self.registry.beat(self.worker_id)
-                    claim = self.store.claim(self.worker_id, self.settings.lease_s)
-                except sa.exc.OperationalError:
-                    # The database is restarting: wait and poll again rather than exit (the
-                    # supervisor would restart the process, paying torch's import again).
-                    log.warning("database unreachable; waiting to claim", exc_info=True)
+                    claim = self._claim_next()
+                except sa.exc.OperationalError as exc:
+                    # The database is restarting (or its disk is full): wait and poll again
+                    # rather than exit (the supervisor would restart the process, paying
+                    # torch's import again).
+                    if is_disk_full(exc):
+                        log.error("cannot claim: the disk holding the job database is full")
+                    else:
+                        log.warning("database unreachable; waiting to claim", exc_info=True)
                     self._stop.wait(self.settings.poll_s)
                     continue
                 if claim is None:
@@ -101,20 +109,30 @@ class TrainingWorker:
                     )
                     outcome = run_job(claim, self.store, self.storage, self.settings, self.current)
                     self.current = None
-                    if outcome.state == JobState.queued:
-                        self.store.release(claim.job_id, self.worker_id, outcome.message)
-                    else:
-                        self.store.finish(
-                            claim.job_id, self.worker_id, outcome.state, outcome.message,
-                            outcome.result,
-                        )  # fmt: skip
-                    log.info("job ended", extra={"state": outcome.state.value})
+                    store_outcome(
+                        self.store, self.storage, self.worker_id, claim.job_id, outcome,
+                        self.settings, self._stop,
+                    )  # fmt: skip
         finally:
             try:
                 self.registry.unregister(self.worker_id)
             except sa.exc.OperationalError:  # its registration expires by itself
                 log.warning("could not unregister the worker", exc_info=True)
         return done
+
+    def _claim_next(self) -> Claim | None:
+        """The oldest queued job, if its expected bytes fit on the disk (:class:`DiskGate`);
+        None when the queue is empty or its head waits for space."""
+        self.store.requeue_expired()
+        head = self.store.oldest_queued()
+        if head is None:
+            return None
+        job_id, spec, waiting_since = head
+        if not self.gate.may_start(job_id, spec, waiting_since):
+            return None
+        # Claim that very job (the one whose size was checked); another worker may take it
+        # first, and then this one looks again after its poll.
+        return self.store.claim_job(job_id, self.worker_id, self.settings.lease_s)
 
     def _prepare_process(self) -> None:
         import torch

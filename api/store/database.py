@@ -7,6 +7,8 @@ from typing import Any
 
 import sqlalchemy as sa
 
+from sparsesplat.api import faults
+
 MIGRATIONS = Path(__file__).with_name("migrations")
 _MIGRATION_LOCK = 7_274_310
 """PostgreSQL advisory-lock key held while migrating (several processes may start at once)."""
@@ -47,6 +49,7 @@ def make_engine(url: str) -> sa.Engine:
         def _on_begin(connection: sa.Connection) -> None:
             connection.exec_driver_sql("BEGIN IMMEDIATE")
 
+        faults.watch_engine(engine)  # tests only: a full database on demand
         return engine
     return sa.create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
 

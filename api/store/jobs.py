@@ -53,10 +53,15 @@ class Claim:
 class JobStore:
     """Job records over one SQLAlchemy engine (SQLite or PostgreSQL)."""
 
-    def __init__(self, engine: sa.Engine, max_attempts: int = MAX_ATTEMPTS) -> None:
-        """``max_attempts``: starts allowed before a job whose worker keeps dying fails."""
+    def __init__(
+        self, engine: sa.Engine, max_attempts: int = MAX_ATTEMPTS, model_ttl_s: float = 0.0
+    ) -> None:
+        """``max_attempts``: starts allowed before a job whose worker keeps dying fails;
+        ``model_ttl_s``: seconds an unpinned model is kept after its job finished (0: for
+        good)."""
         self.engine = engine
         self.max_attempts = max_attempts
+        self.model_ttl_s = model_ttl_s
 
     # -- API side ----------------------------------------------------------------------------
     def create(
@@ -203,6 +208,147 @@ class JobStore:
             conn.execute(events.delete().where(events.c.job_id == job_id))
             conn.execute(jobs.delete().where(jobs.c.id == job_id))
 
+    # -- storage life --------------------------------------------------------------------------
+    def ids_of_owner(self, owner: str) -> list[str]:
+        """Every job id ``owner`` has stored (any state)."""
+        with self.engine.begin() as conn:
+            return list(conn.execute(sa.select(jobs.c.id).where(jobs.c.owner == owner)).scalars())
+
+    def all_ids(self) -> set[str]:
+        """Every stored job id (to find files whose record is gone)."""
+        with self.engine.begin() as conn:
+            return set(conn.execute(sa.select(jobs.c.id)).scalars())
+
+    def counts_of_owner(self, owner: str) -> dict[str, int]:
+        """``owner``'s jobs: ``jobs`` (all), ``active`` (queued or running), ``models``
+        (succeeded, not expired) and ``pinned`` (of those, pinned)."""
+        now = time.time()
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.state, jobs.c.pinned, jobs.c.expired_at, jobs.c.finished_at)
+                .where(jobs.c.owner == owner)
+            ).all()  # fmt: skip
+        models = [r for r in rows if r.state == JobState.succeeded.value
+                  and not self._expired(r.pinned, r.expired_at, r.finished_at, now)]  # fmt: skip
+        return {
+            "jobs": len(rows),
+            "active": sum(r.state in (JobState.queued.value, JobState.running.value) for r in rows),
+            "models": len(models),
+            "pinned": sum(bool(r.pinned) for r in models),
+        }
+
+    def set_pinned(self, job_id: str, pinned: bool) -> bool:
+        """Pin (keep past expiry) or unpin a job's model; False when the job does not exist."""
+        with self.engine.begin() as conn:
+            updated = conn.execute(jobs.update().where(jobs.c.id == job_id).values(pinned=pinned))
+        return updated.rowcount == 1
+
+    def expired_unswept(self) -> list[str]:
+        """Succeeded, unpinned jobs past the model expiry whose files were not removed yet."""
+        if self.model_ttl_s <= 0:
+            return []
+        with self.engine.begin() as conn:
+            return list(
+                conn.execute(
+                    sa.select(jobs.c.id).where(
+                        jobs.c.state == JobState.succeeded.value,
+                        jobs.c.pinned.is_(False),
+                        jobs.c.expired_at.is_(None),
+                        jobs.c.finished_at < time.time() - self.model_ttl_s,
+                    )
+                ).scalars()
+            )
+
+    def mark_expired(self, job_id: str) -> bool:
+        """Record that ``job_id``'s model expired (its files go next); False when it is not
+        (or no longer) an unpinned, unexpired model past the expiry (a pin won the race)."""
+        if self.model_ttl_s <= 0:
+            return False
+        now = time.time()
+        with self.engine.begin() as conn:
+            updated = conn.execute(
+                jobs.update()
+                .where(
+                    jobs.c.id == job_id,
+                    jobs.c.state == JobState.succeeded.value,
+                    jobs.c.pinned.is_(False),
+                    jobs.c.expired_at.is_(None),
+                    jobs.c.finished_at < now - self.model_ttl_s,
+                )
+                .values(expired_at=now)
+            )
+            if updated.rowcount != 1:
+                return False
+            self._append(conn, job_id, "warning", {"message": "the model expired"})
+        return True
+
+    # -- waiting for disk space -------------------------------------------------------------
+    def oldest_queued(self) -> tuple[str, dict[str, Any], float | None] | None:
+        """The job the next claim would take: (id, spec, since when it waits for disk space or
+        None), or None when the queue is empty."""
+        with self.engine.begin() as conn:
+            row = conn.execute(
+                sa.select(jobs.c.id, jobs.c.spec, jobs.c.disk_wait_since)
+                .where(jobs.c.state == JobState.queued.value)
+                .order_by(jobs.c.created_at, jobs.c.id)
+                .limit(1)
+            ).first()
+        return None if row is None else (row.id, dict(row.spec), row.disk_wait_since)
+
+    def running_specs(self) -> list[tuple[str, dict[str, Any]]]:
+        """(id, spec) of every running job (their disk use still grows)."""
+        with self.engine.begin() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.id, jobs.c.spec).where(jobs.c.state == JobState.running.value)
+            ).all()
+        return [(r.id, dict(r.spec)) for r in rows]
+
+    def spec_of_queued(self, job_id: str) -> tuple[dict[str, Any], float | None] | None:
+        """(spec, waiting-for-disk-since) of ``job_id`` if it is queued, else None."""
+        with self.engine.begin() as conn:
+            row = conn.execute(
+                sa.select(jobs.c.spec, jobs.c.disk_wait_since).where(
+                    jobs.c.id == job_id, jobs.c.state == JobState.queued.value
+                )
+            ).first()
+        return None if row is None else (dict(row.spec), row.disk_wait_since)
+
+    def note_disk_wait(self, job_id: str, message: str) -> float | None:
+        """Record that the queued ``job_id`` waits for disk space (a ``warning`` event with
+        ``message`` the first time); returns since when it waits (None: it is not queued)."""
+        now = time.time()
+        with self.engine.begin() as conn:
+            row = conn.execute(
+                sa.select(jobs.c.disk_wait_since, jobs.c.warnings).where(
+                    jobs.c.id == job_id, jobs.c.state == JobState.queued.value
+                )
+            ).first()
+            if row is None:
+                return None
+            if row.disk_wait_since is not None:
+                return float(row.disk_wait_since)
+            conn.execute(
+                jobs.update()
+                .where(jobs.c.id == job_id)
+                .values(disk_wait_since=now, warnings=[*(row.warnings or []), message])
+            )
+            self._append(conn, job_id, "warning", {"message": message})
+        return now
+
+    def fail_queued(self, job_id: str, message: str) -> bool:
+        """Fail a job that never started (it waited too long for disk space); False when it
+        is no longer queued."""
+        with self.engine.begin() as conn:
+            updated = conn.execute(
+                jobs.update()
+                .where(jobs.c.id == job_id, jobs.c.state == JobState.queued.value)
+                .values(state=JobState.failed.value, finished_at=time.time(), error=message)
+            )
+            if updated.rowcount != 1:
+                return False
+            self._append(conn, job_id, "state", {"state": "failed", "message": message})
+        return True
+
     def events_after(self, job_id: str, after: int = 0, limit: int = 500) -> list[Event]:
         """Stored events with ``seq > after``, oldest first."""
         with self.engine.begin() as conn:
@@ -292,7 +438,7 @@ class JobStore:
         return held, bool(cancel)
 
     def add_event(self, job_id: str, type_: str, data: dict[str, Any]) -> int:
-        """Append one event; returns its sequence number."""
+        """Append one event; returns its sequence number (0: the job no longer exists)."""
         with self.engine.begin() as conn:
             return self._append(conn, job_id, type_, data)
 
@@ -426,6 +572,7 @@ class JobStore:
             "lease_until": lease_until,
             "attempts": jobs.c.attempts + 1,
             "started_at": sa.func.coalesce(jobs.c.started_at, now),
+            "disk_wait_since": None,
         }
 
     @staticmethod
@@ -447,12 +594,17 @@ class JobStore:
 
     @staticmethod
     def _append(conn: sa.Connection, job_id: str, type_: str, data: dict[str, Any]) -> int:
+        """Store one event; its sequence number, or 0 when the job is gone (deleted while its
+        worker ran: the worker learns it from its heartbeat and stops; its last reports go
+        nowhere rather than ending the worker process)."""
         seq = conn.execute(
             jobs.update()
             .where(jobs.c.id == job_id)
             .values(last_seq=jobs.c.last_seq + 1)
             .returning(jobs.c.last_seq)
-        ).scalar_one()
+        ).scalar_one_or_none()
+        if seq is None:
+            return 0
         conn.execute(
             events.insert().values(
                 job_id=job_id, seq=seq, type=type_, time=time.time(), data=_json_safe(data)
@@ -460,14 +612,27 @@ class JobStore:
         )
         return int(seq)
 
-    @classmethod
-    def _read(cls, conn: sa.Connection, job_id: str, owner: str | None = None) -> Job | None:
+    def _read(self, conn: sa.Connection, job_id: str, owner: str | None = None) -> Job | None:
         """The job as ``conn``'s transaction sees it (None if absent or another owner's)."""
-        row = conn.execute(cls._select(owner).where(jobs.c.id == job_id)).first()
-        return None if row is None else cls._to_job(conn, row)
+        row = conn.execute(self._select(owner).where(jobs.c.id == job_id)).first()
+        return None if row is None else self._to_job(conn, row)
 
-    @staticmethod
-    def _to_job(conn: sa.Connection, row: sa.Row[Any]) -> Job:
+    def expires_at(self, pinned: bool, finished_at: float | None) -> float | None:
+        """When a succeeded job's model expires (None: pinned, or no expiry is set)."""
+        if pinned or self.model_ttl_s <= 0 or finished_at is None:
+            return None
+        return finished_at + self.model_ttl_s
+
+    def _expired(
+        self, pinned: bool, expired_at: float | None, finished_at: float | None, now: float
+    ) -> bool:
+        """Whether a succeeded job's model has expired (swept already, or past its time)."""
+        if expired_at is not None:
+            return True
+        until = self.expires_at(pinned, finished_at)
+        return until is not None and until <= now
+
+    def _to_job(self, conn: sa.Connection, row: sa.Row[Any]) -> Job:
         position = None
         if row.state == JobState.queued.value:
             position = int(
@@ -483,6 +648,10 @@ class JobStore:
                     )
                 ).scalar_one()
             )
+        succeeded = row.state == JobState.succeeded.value
+        expired = succeeded and self._expired(
+            row.pinned, row.expired_at, row.finished_at, time.time()
+        )
         return Job(
             id=row.id,
             state=JobState(row.state),
@@ -496,9 +665,12 @@ class JobStore:
             attempts=row.attempts,
             n_train_views=row.n_train_views,
             n_test_views=row.n_test_views,
-            has_model=row.state == JobState.succeeded.value,
+            has_model=succeeded and not expired,
             warnings=list(row.warnings or []),
             disk_bytes=(row.result or {}).get("disk_bytes"),
+            pinned=bool(row.pinned),
+            expires_at=_dt(self.expires_at(row.pinned, row.finished_at)) if succeeded else None,
+            expired=succeeded and expired,
         )
 
 

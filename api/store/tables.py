@@ -29,6 +29,9 @@ jobs = sa.Table(
     sa.Column("n_train_views", sa.Integer, nullable=False),
     sa.Column("n_test_views", sa.Integer, nullable=False),
     sa.Column("last_seq", sa.Integer, nullable=False, default=0),
+    sa.Column("pinned", sa.Boolean, nullable=False, default=False),  # kept past expiry (0003)
+    sa.Column("expired_at", sa.Float),  # when its model's files were removed (0003)
+    sa.Column("disk_wait_since", sa.Float),  # first waited for disk space to start (0003)
     sa.UniqueConstraint("owner", "idempotency_key", name="uq_jobs_owner_idempotency"),
 )
 """One row per job; the truth about its state."""

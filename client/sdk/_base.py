@@ -21,6 +21,7 @@ from sparsesplat.api.jobs import Job, JobPage, JobSpec, JobState, ModelInfo, Rec
 from sparsesplat.api.names import ExportFormat
 from sparsesplat.api.renders import RENDER_WARNING_HEADER, RenderMode, RenderOutput
 from sparsesplat.api.schemas import ErrorBody, Health, Readiness
+from sparsesplat.api.usage import Usage
 from sparsesplat.client import media
 from sparsesplat.client.errors import (
     APIError,
@@ -325,6 +326,14 @@ class _Base:
         return _Call(
             "POST", f"/v1/models/{model_id}/render", _render_content, timeout, True, json=body
         )
+
+    def _c_pin(self, model_id: str, pinned: bool) -> _Call[ModelInfo]:
+        method = "PUT" if pinned else "DELETE"
+        path = f"/v1/models/{model_id}/pin"
+        return _Call(method, path, _model(ModelInfo), self.timeouts.read, True)
+
+    def _c_usage(self) -> _Call[Usage]:
+        return _Call("GET", "/v1/usage", _model(Usage), self.timeouts.read, True)
 
     def _c_export(self, model_id: str, format: ExportFormat) -> _Call[bytes]:
         if format not in get_args(ExportFormat):

@@ -15,6 +15,7 @@ import httpx
 from sparsesplat.api.cameras import Intrinsics, PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, Record
 from sparsesplat.api.schemas import Health, Readiness
+from sparsesplat.api.usage import Usage
 from sparsesplat.client.errors import APIError, ConnectionFailed, SparsesplatError, Timeout
 from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
@@ -181,8 +182,13 @@ class Client(_Base, ClosesOnExit):
         return self._send(self._c_cancel(job_id))
 
     def delete(self, job_id: str) -> None:
-        """Delete a job and every file of it (cancelling it first if needed)."""
+        """Delete a job and every file of it (cancelling it first if needed); its bytes are
+        freed at once."""
         self._send(self._c_delete(job_id))
+
+    def usage(self) -> Usage:
+        """``GET /v1/usage``: the bytes and jobs your key holds, against the service's limits."""
+        return self._send(self._c_usage())
 
     def metrics(self, job_id: str) -> list[Record]:
         """The job's held-out error records so far, oldest first."""
@@ -383,6 +389,10 @@ class AsyncClient(_Base, AsyncClosesOnExit):
     async def delete(self, job_id: str) -> None:
         """See :meth:`Client.delete`."""
         await self._send(self._c_delete(job_id))
+
+    async def usage(self) -> Usage:
+        """See :meth:`Client.usage`."""
+        return await self._send(self._c_usage())
 
     async def metrics(self, job_id: str) -> list[Record]:
         """See :meth:`Client.metrics`."""

@@ -191,6 +191,10 @@ class ModelHandle:
         """Download the model as ``ply`` (INRIA layout), ``splat`` or ``checkpoint``."""
         return write_file(path, self.client._send(self.client._c_export(self.id, format)))
 
+    def pin(self, pinned: bool = True) -> ModelInfo:
+        """Keep the model past the service's model expiry (``pinned=False``: let it expire)."""
+        return self.client._send(self.client._c_pin(self.id, pinned))
+
     def __repr__(self) -> str:
         return f"ModelHandle({self.id!r})"
 
@@ -351,6 +355,10 @@ class AsyncModelHandle:
     async def export(self, format: ExportFormat, path: str | Path) -> Path:
         """See :meth:`ModelHandle.export`."""
         return write_file(path, await self.client._send(self.client._c_export(self.id, format)))
+
+    async def pin(self, pinned: bool = True) -> ModelInfo:
+        """See :meth:`ModelHandle.pin`."""
+        return await self.client._send(self.client._c_pin(self.id, pinned))
 
     def __repr__(self) -> str:
         return f"AsyncModelHandle({self.id!r})"

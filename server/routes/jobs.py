@@ -8,15 +8,19 @@ import io
 import json
 from typing import Annotated
 
+import sqlalchemy.exc
 from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
+from sparsesplat.api.disk import disk_full_message, free_bytes, is_disk_full
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
 from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import new_job_id
 from sparsesplat.server.deps import OwnerDep, OwnJobDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
+from sparsesplat.server.state import ServiceState
+from sparsesplat.server.storage_limits import check_submission, declared_length
 from sparsesplat.server.uploads import validate_upload
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -107,13 +111,27 @@ async def submit_job(
             f"{settings.max_active_jobs_per_key} (SPARSESPLAT_MAX_ACTIVE_JOBS_PER_KEY)",
             {"Retry-After": "60"},
         )
+    # The key's limits and the disk's room, before anything is read or stored.
+    upload_bytes = declared_length(dict(request.headers))
+    await asyncio.to_thread(check_submission, service, owner, upload_bytes)
     try:
         form = await request.form(max_files=2 * settings.max_images + 4, max_fields=16)
     except MultiPartException as exc:
         raise invalid("invalid_upload", f"cannot read the multipart upload: {exc.message}") from exc
-    staging = service.storage.new_staging_dir()
     try:
-        upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        staging = service.storage.new_staging_dir()
+    except OSError as exc:
+        await form.close()
+        if is_disk_full(exc):
+            raise _no_room(service, upload_bytes) from exc
+        raise
+    try:
+        try:
+            upload = await asyncio.to_thread(validate_upload, form, settings, staging)
+        except OSError as exc:  # the staged files could not be written
+            if is_disk_full(exc):
+                raise _no_room(service, upload_bytes) from exc
+            raise
         # Files first, record second: a worker that claims the job finds its upload in place.
         job_id = new_job_id()
         service.storage.commit_upload(staging, job_id)
@@ -135,6 +153,14 @@ async def submit_job(
         await form.close()
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job
+
+
+def _no_room(service: ServiceState, upload_bytes: int) -> ServiceError:
+    """507 for an upload the disk had no room for (its staged files are removed by the
+    caller)."""
+    free = free_bytes(service.storage.root)
+    message = disk_full_message("receiving the upload", upload_bytes or None, free)
+    return ServiceError(507, "insufficient_storage", message, {"Retry-After": "60"})
 
 
 @router.get("", response_model=JobPage, summary="List your jobs")
@@ -172,10 +198,22 @@ def cancel_job(job: OwnJobDep, service: ServiceDep) -> Job:
 
 @router.delete("/{job_id}", status_code=204, summary="Delete a job and every file of it")
 def delete_job(job: OwnJobDep, service: ServiceDep) -> Response:
-    """Cancels it if needed, then removes its record, events, uploads, model and exports."""
-    if not job.state.terminal:
-        service.jobs.request_cancel(job.id)
-    service.jobs.delete(job.id)
+    """Cancels it if needed, then removes its record, events, uploads, model and exports.
+    On a full disk its files go first, so that the database has room to forget it (a 507 if
+    it still has not: the files are gone all the same, and a retry removes the record)."""
+
+    def forget() -> None:
+        if not job.state.terminal:
+            service.jobs.request_cancel(job.id)
+        service.jobs.delete(job.id)
+
+    try:
+        forget()
+    except sqlalchemy.exc.OperationalError as exc:
+        if not is_disk_full(exc):
+            raise
+        service.storage.delete_job(job.id)
+        forget()
     service.storage.delete_job(job.id)
     return Response(status_code=204)
 

@@ -17,6 +17,7 @@ from sparsesplat.api.names import ARTIFACT_FILES, ExportFormat
 from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, RenderOutput, RenderRequest
 from sparsesplat.server.deps import OwnerDep, ServiceDep
 from sparsesplat.server.errors import ServiceError, invalid, not_found
+from sparsesplat.server.expiry import expire_now, expired_error
 from sparsesplat.server.render_dispatch import NoRenderWorker, RenderFailed
 from sparsesplat.server.state import ServiceState
 from sparsesplat.server.uploads import pydantic_message
@@ -34,6 +35,9 @@ def own_model(service: ServiceState, owner: str, model_id: str) -> Job:
     job = service.jobs.get(model_id, owner)
     if job is None:
         raise not_found("model", model_id)
+    if job.expired:
+        expire_now(service, model_id)  # past its time but not swept yet: its bytes go now
+        raise expired_error(service, job)
     if job.state != JobState.succeeded:
         raise ServiceError(
             409,
@@ -46,7 +50,7 @@ def own_model(service: ServiceState, owner: str, model_id: str) -> Job:
 @router.get("/{model_id}", response_model=ModelInfo, summary="Describe a trained model")
 def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
     """Size, final held-out metrics, exports and the cameras it was trained with."""
-    own_model(service, owner, model_id)
+    job = own_model(service, owner, model_id)
     result = service.jobs.result(model_id) or {}
     cameras_file = service.storage.upload_dir(model_id) / "cameras.json"
     document = json.loads(cameras_file.read_text())
@@ -70,7 +74,28 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
             service.storage.prior_picture(model_id, k).is_file()
             for k in range(sum(c.get("split", "train") == "train" for c in cameras))
         ),
+        pinned=job.pinned,
+        expires_at=job.expires_at,
     )
+
+
+@router.put("/{model_id}/pin", response_model=ModelInfo, summary="Keep a model past expiry")
+def pin_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
+    """Pin the model: the service's model expiry (``SPARSESPLAT_MODEL_TTL_DAYS``) passes it
+    by. An expired model cannot be pinned (its files are gone)."""
+    own_model(service, owner, model_id)
+    if not service.jobs.set_pinned(model_id, True):
+        raise not_found("model", model_id)
+    return get_model(model_id, service, owner)
+
+
+@router.delete("/{model_id}/pin", response_model=ModelInfo, summary="Let a model expire")
+def unpin_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
+    """Unpin the model: it expires with the others (at once if it is past its time)."""
+    own_model(service, owner, model_id)
+    if not service.jobs.set_pinned(model_id, False):
+        raise not_found("model", model_id)
+    return get_model(model_id, service, owner)
 
 
 MODEL_METRICS = ("psnr", "ssim", "lpips", "avge")

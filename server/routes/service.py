@@ -6,6 +6,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
 from sparsesplat import __version__
+from sparsesplat.api.disk import disk_state
 from sparsesplat.api.kernel_status import STATUS_FILE, KernelState, read_status
 from sparsesplat.api.schemas import Health, Readiness
 from sparsesplat.server.deps import ServiceDep
@@ -15,14 +16,18 @@ router = APIRouter(tags=["service"])
 
 @router.get("/healthz", response_model=Health)
 async def healthz(service: ServiceDep) -> Health:
-    """Liveness: answers as soon as the process serves HTTP (touches no database), with the
-    state of the native kernels' build (a small file in the data folder)."""
+    """Liveness: answers as soon as the process serves HTTP (touches no database: a statvfs of
+    the data folder, since a full disk is the first thing an operator wants to see, and the
+    native kernels' build status, a small file there)."""
     settings = service.settings
+    disk = disk_state(service.storage.root, settings.disk_reserve_mb * 1_000_000)
     kernels = read_status(settings.data_dir / STATUS_FILE)
     return Health(
         version=__version__,
         queue=settings.queue.value,
         device=settings.device.value,
+        disk=disk.status,
+        disk_free_bytes=disk.free_bytes,
         kernels=None if kernels is None else kernels.state.value,
         kernels_detail=None if kernels is None else kernels.summary(),
     )

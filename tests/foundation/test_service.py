@@ -73,7 +73,15 @@ def test_healthz_answers_200(service: str) -> None:
     assert response.status_code == 200
     body = response.json()
     kernels = {"kernels": body.pop("kernels"), "detail": body.pop("kernels_detail")}
-    assert body == {"status": "ok", "version": __version__, "queue": "local", "device": "cpu"}
+    free = body.pop("disk_free_bytes")
+    assert body == {
+        "status": "ok",
+        "version": __version__,
+        "queue": "local",
+        "device": "cpu",
+        "disk": "ok",
+    }
+    assert isinstance(free, int) and free > 0
     # The workers build (here: load, cached) the native kernels as they start; before the first
     # worker has got that far there is no status yet.
     assert kernels["kernels"] in (None, "building", "ready"), kernels

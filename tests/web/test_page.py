@@ -196,6 +196,10 @@ def test_api_key_entered_once_and_kept_in_the_tab(
         page.reload()
         page.wait_for_selector("#jobs-empty:not([hidden])")
         assert not page.is_visible("#key-dialog")
+        # The status line shows the key's stored bytes (GET /v1/usage, sent with the key).
+        page.wait_for_function(
+            "() => document.getElementById('server-status').textContent.includes('stored 0.0 MB')"
+        )
         # The first request went out without a key: its 401 is the only console error allowed.
         console.assert_clean(allowed=("401",))
         assert sum("401" in e for e in console.errors) == 1

@@ -56,6 +56,23 @@ async function errorFrom(response) {
   return new ApiError(response.status, code, message);
 }
 
+let anonymousAnswered = false;
+
+/** Whether the server answered a /v1 request sent without a key (it runs without keys). */
+export function anonymousWorks() {
+  return anonymousAnswered;
+}
+
+/** GET `path` as JSON, or null on any error, without asking for a key (for a status line). */
+export async function optional(path) {
+  try {
+    const response = await fetch(path, { headers: authHeaders() });
+    return response.ok ? await response.json() : null;
+  } catch {
+    return null;
+  }
+}
+
 /**
  * One API request. `json` is sent as the JSON body; `as` picks what comes back: "json"
  * (null for 204), "blob", "arrayBuffer" or "response".
@@ -74,6 +91,7 @@ export async function request(path, { method = "GET", json, body, headers, as = 
     throw new ApiError(0, "unreachable", `the server did not answer (${exc.message})`);
   }
   if (!response.ok) throw await errorFrom(response);
+  if (!h.has("Authorization") && path.startsWith("/v1/")) anonymousAnswered = true;
   if (as === "response") return response;
   if (as === "blob") return response.blob();
   if (as === "arrayBuffer") return response.arrayBuffer();

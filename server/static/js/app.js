@@ -4,7 +4,7 @@
 //   #/jobs/<id>         a job: live progress, error against run time, training/held-out views
 //   #/jobs/<id>/viewer  the trained model in the browser, with server renders of any pose
 
-import { apiKey, onUnauthenticated, request, setApiKey } from "./api.js";
+import { anonymousWorks, apiKey, onUnauthenticated, optional, request, setApiKey } from "./api.js";
 
 const view = document.getElementById("view");
 const keyDialog = document.getElementById("key-dialog");
@@ -66,16 +66,33 @@ keyDialog.addEventListener("close", () => {
   else if (keyDialog.returnValue === "clear") setApiKey("");
   else return;
   updateKeyButton();
+  serverStatus();
   route(true);
 });
 keyButton.addEventListener("click", () => askForKey(""));
 onUnauthenticated((message) => askForKey(message));
 
+const STATUS_REFRESH_MS = 15000; // the disk and the key's stored bytes change as jobs run
+
+function megabytes(bytes) {
+  return `${(bytes / 1e6).toFixed(bytes < 1e7 ? 1 : 0)} MB`;
+}
+
 async function serverStatus() {
   const box = document.getElementById("server-status");
   try {
     const health = await request("/healthz");
-    box.textContent = `v${health.version} · ${health.device} · ${health.queue} queue`;
+    const parts = [`v${health.version}`, health.device, `${health.queue} queue`];
+    if (health.disk && health.disk !== "ok") {
+      parts.push(`disk ${health.disk}: ${megabytes(health.disk_free_bytes)} free`);
+    }
+    // Only with a key, or once the server has answered without one: never a second 401.
+    const usage = apiKey() || anonymousWorks() ? await optional("/v1/usage") : null;
+    if (usage) {
+      const limit = usage.stored_limit_bytes ? ` of ${megabytes(usage.stored_limit_bytes)}` : "";
+      parts.push(`stored ${megabytes(usage.stored_bytes)}${limit}`);
+    }
+    box.textContent = parts.join(" · ");
   } catch (exc) {
     box.textContent = `server: ${exc.message}`;
   }
@@ -85,3 +102,4 @@ window.addEventListener("hashchange", () => route());
 updateKeyButton();
 serverStatus();
 route(true);
+setInterval(serverStatus, STATUS_REFRESH_MS);
