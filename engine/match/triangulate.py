@@ -233,10 +233,9 @@ def matched_start(
         )
     cams = _cameras(cameras)
     rgb = [as_float_rgb(p, i) for i, p in enumerate(photos)]
-    for i, (cam, size) in enumerate(zip(cams, matches.sizes, strict=True)):
-        if rgb[i].shape[1::-1] != size:
+    for i, size in enumerate(matches.sizes):
+        if rgb[i].shape[1::-1] != tuple(size):
             raise MatchError(f"photo {i + 1} is {rgb[i].shape[1::-1]}, it was matched at {size}")
-        del cam
     tracks = build_tracks(matches)
     counts = {"tracks": tracks.count, "conflicts": tracks.conflicts}
     x, finite = dlt(tracks, cams)

@@ -16,7 +16,7 @@ from sparsesplat.engine.match.geometry import PinholeArrays, project
 from sparsesplat.engine.match.result import MatchSet
 from sparsesplat.engine.match.settings import MatchSettings
 from sparsesplat.engine.match.tracks import build_tracks
-from sparsesplat.engine.match.triangulate import dlt, reprojection
+from sparsesplat.engine.match.triangulate import dlt, refine, reprojection
 from tests.engine.match.synthetic import (
     FOCAL,
     HEIGHT,
@@ -83,7 +83,7 @@ def test_scales_are_the_rms_distance_to_the_three_nearest_points(seed: int) -> N
     np.testing.assert_allclose(start.scales, ref, rtol=1e-5)
 
 
-@pytest.mark.parametrize("degrees", [0.5, 2.0])
+@pytest.mark.parametrize("degrees", [1.0, 3.0])
 def test_a_planted_wrong_camera_raises_the_error_and_its_points_are_filtered(
     seed: int, degrees: float
 ) -> None:
@@ -107,6 +107,8 @@ def test_a_planted_wrong_camera_raises_the_error_and_its_points_are_filtered(
     # it: far above the sub-millipixel error of the right cameras.
     shift = FOCAL * math.tan(turn)
     assert float(np.median(loose.errors)) > 0.2 * shift
+    # The worst view keeps about 2/3 of the shift (1 degree: 8.7 px -> ~5.8 px); at 0.5 degree
+    # (~2.9 px) the slightly tilted epipolar lines let a few points slip under 2 px.
     strict = matched_start(matches, wrong, photos, TriangulationSettings(max_error_px=2.0))
     assert strict.counts["kept"] == 0 and strict.counts["error"] == len(truth)
     right = matched_start(matches, cams, photos, TriangulationSettings(max_error_px=2.0))
@@ -140,18 +142,20 @@ def test_gauss_newton_lowers_the_reprojection_error_of_noisy_observations(seed: 
     rng = np.random.default_rng(seed)
     cams = arc_cameras(4, 10.0)
     truth = cube_points(rng, 200)
-    matches = exact_matches(truth, cams, rng, noise_px=0.7)
-    photos = flat_photos(4, (0, 0, 0))
-    wide = {"max_error_px": 1e9, "min_angle_deg": 0.0}
-    raw = matched_start(matches, cams, photos, TriangulationSettings(refine_iterations=0, **wide))
-    fine = matched_start(matches, cams, photos, TriangulationSettings(refine_iterations=5, **wide))
-    tracks = build_tracks(matches)
-    x0, _ = dlt(tracks, cams)
-    e0, _ = reprojection(x0, tracks, cams)
-    assert raw.counts["kept"] == fine.counts["kept"] == len(truth)
-    # Per point the refined largest error may rise while the sum of squares falls; in sum:
-    assert float((fine.errors**2).sum()) < float((raw.errors**2).sum())
-    assert float((e0**2).sum()) > 0
+    tracks = build_tracks(exact_matches(truth, cams, rng, noise_px=0.7))
+    x0, finite = dlt(tracks, cams)
+    x1 = refine(x0, tracks, cams, 5)
+
+    def per_track(x: np.ndarray) -> np.ndarray:
+        err, _ = reprojection(x, tracks, cams)
+        return np.bincount(tracks.track, err * err, minlength=tracks.count)
+
+    # Each point's summed squared error (what the steps minimise) never rises, and in all
+    # falls: the DLT minimises an algebraic error, not the pixel one.
+    assert finite.all()
+    before, after = per_track(x0), per_track(x1)
+    assert (after <= before).all()
+    assert after.sum() < before.sum()
 
 
 def test_a_component_holding_two_keypoints_of_one_photo_is_dropped(seed: int) -> None:
