@@ -25,7 +25,7 @@ def test_checkpoint_model_and_export_sizes_follow_the_figures(
     color: str, mic_upload: Path, tmp_path: Path
 ) -> None:
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train.checkpoint import load_checkpoint, model_state
+    from sparsesplat.engine.model.checkpoint import load_checkpoint, model_state
     from sparsesplat.engine.train.run import RunSpec, build_run
 
     overrides = {"depth.prior": "none", "color.model": color, "threads": 1,
