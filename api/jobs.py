@@ -155,7 +155,7 @@ class CameraEstimation(BaseModel):
     """How the cameras of a photos-only upload were estimated (structure from motion)."""
 
     views: int
-    """Photos registered (the job trains on these)."""
+    """Photos registered (all of them: a job with an unplaceable photo fails)."""
     points: int
     """Sparse points triangulated (``init='sparse'`` starts from them)."""
     reprojection_error_px: float
@@ -168,9 +168,6 @@ class CameraEstimation(BaseModel):
     """The settings that succeeded (``relaxed`` SIFT, ``learned`` matches, ``more features``)."""
     focal: str
     """Where the focal length started: ``given`` (held fixed), ``exif`` or ``guess``."""
-    left_out: dict[str, str] = {}
-    """Photos that could not be placed -> why (no neighbour within the matcher's reach); the
-    job trains on the others. A set mostly left out fails instead."""
 
 
 class Progress(BaseModel):

@@ -51,7 +51,5 @@ def estimate_upload_cameras(
     summary = CameraEstimation.model_validate(estimate.summary())
     log.info("cameras estimated", extra={"job_id": job_id, **summary.model_dump()})
     beat.set_cameras(summary)
-    for reason in estimate.left_out.values():  # the job trains on the others: say so
-        store.add_warning(job_id, f"{reason}; training on the {summary.views} photos placed")
     beat.set_phase("preparing")
     store.add_event(job_id, "progress", beat.progress().model_dump(mode="json"))

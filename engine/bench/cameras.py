@@ -38,7 +38,7 @@ SCENES = {
     "fox": "instant_ngp/fox",
 }
 """Scene name -> folder under the shared data root."""
-COLUMNS = ["scene", "intrinsics", "views", "registered", "left_out", "median_deg", "max_deg",
+COLUMNS = ["scene", "intrinsics", "views", "registered", "median_deg", "max_deg",
            "reproj_px", "points", "seconds", "outcome"]  # fmt: skip
 
 
@@ -67,15 +67,11 @@ def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
         except CameraEstimationError as exc:
             return {**row, "registered": 0, "outcome": str(exc)}
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    # Photos left out (no neighbour within the matcher's reach) have no estimate: the others
-    # are compared, by their file names' index.
-    placed = [int(Path(f.image).stem) for f in result.cameras.frames]
-    ref = [views[i].camera.world_to_camera.double().numpy() for i in placed]
+    ref = [v.camera.world_to_camera.double().numpy() for v in views]
     errors = rotation_errors_deg(est, ref, align(est, ref))
     return {
         **row,
         "registered": len(est),
-        "left_out": ", ".join(result.left_out) or "-",
         "median_deg": float(np.median(errors)),
         "max_deg": float(np.max(errors)),
         "reproj_px": result.reprojection_error_px,

