@@ -40,6 +40,6 @@ ATTEMPTS: tuple[Attempt, ...] = (
     Attempt("more features", 0.002, True, False, True, 12, 0.5),
 )
 """Tried in order until a result places every photo and passes every check (:mod:`.check`).
-A third, affine-adapted SIFT with 10 inliers, registered DTU scan24's three views with 0.55-0.67 px reprojection error
-but 3-11° rotation error against the dataset: a wrong frame that passes every check, so it
-is not tried (docs/experiments/2026-11-25-camera-estimation.md)."""
+A third, affine-adapted SIFT with 10 inliers, registered DTU scan24's three views with
+0.55-0.67 px reprojection error but 3-11° rotation error against the dataset: a wrong frame
+that passes every check, so it is not tried (docs/experiments/2026-11-25-camera-estimation.md)."""
