@@ -24,7 +24,7 @@ SOURCE_DIR = Path(__file__).resolve().parent / "cpu"
 _EXTENSION = NativeExtension(
     "sparsesplat_raster_cpu",
     SOURCE_DIR,
-    ("raster.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp"),
+    ("raster.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp", "kernels_portable.cpp"),
     BASELINE_CFLAGS,
     on_failure=RasterError,
     failure_hint="",
