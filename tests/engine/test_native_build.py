@@ -232,3 +232,16 @@ def test_every_extension_says_what_runs_instead_and_how_much_slower() -> None:
                 photometric_build._EXTENSION):  # fmt: skip
         assert "torch" in ext.fallback and "slower" in ext.fallback, ext.description
     assert "small images" in raster_build._EXTENSION.fallback
+
+
+def test_a_kernel_that_cannot_be_built_reads_as_the_torch_fallback(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """load_kernels (the CLI's and the workers' set-up) does not fail on an extension that
+    cannot be built: its variant reads 'torch', the others load as usual."""
+    from sparsesplat.engine import kernels
+
+    monkeypatch.setattr(raster_build, "load_projection_extension_or_none", lambda: None)
+    variants = kernels.load_kernels(color=False, training=False)
+    assert variants["projection"] == kernels.FALLBACK, variants
+    assert variants["rasterizer"] != kernels.FALLBACK, variants
