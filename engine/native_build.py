@@ -161,7 +161,8 @@ def _building_notice(description: str, build_dir: Path, fresh: bool) -> Iterator
         yield
     finally:
         done.set()
-        log.warning("built the %s in %.0f s", description, time.monotonic() - started)
+    # Reached only when the build succeeded (a failure propagates from the yield).
+    log.warning("built the %s in %.0f s", description, time.monotonic() - started)
 
 
 def build_key(
