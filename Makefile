@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check
 BENCH_ARGS ?=
 
-.PHONY: run test lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet bench-cameras bench-matchers
+.PHONY: run test test-arm64 check-arm64-build lint typecheck dockerlint composelint pytest venv clean bench-raster bench-quality bench-iteration bench-parts bench-reference-depth bench-per-view bench-service bench-render-sheet bench-cameras bench-matchers
 
 venv: $(VENV)/.installed
 
@@ -47,6 +47,17 @@ pytest: venv
 	$(PY) -m pytest; status=$$?; if [ $$status -eq 5 ]; then exit 0; fi; exit $$status
 
 test: lint typecheck dockerlint composelint pytest
+
+# The rasterizer's aarch64 (NEON) kernels against the float64 reference: cross-compiled from the
+# same sources and run under qemu-user (Debian: apt-get install g++-aarch64-linux-gnu
+# qemu-user). A missing tool fails here; in `make test` those tests skip without them.
+test-arm64: venv
+	SPARSESPLAT_REQUIRE_ARM64=1 $(PY) -m pytest -q tests/engine/raster/test_arm64_emulated.py
+
+# Every native extension's sources cross-compiled for aarch64 (objects only: no aarch64 torch
+# to link against here); needs g++-aarch64-linux-gnu.
+check-arm64-build: venv
+	$(PY) -m sparsesplat.engine.arm64_build
 
 bench-raster: venv
 	$(PY) -m sparsesplat.engine.bench.raster $(BENCH_ARGS)

@@ -22,18 +22,17 @@ from contextlib import contextmanager
 
 import torch
 
-from sparsesplat.engine.errors import EngineError
-
 
 def _set(on: bool) -> bool:
     """Set the mode on all compute threads (or the calling one); return the previous mode."""
-    try:
-        from sparsesplat.engine.color.build import load_extension
+    from sparsesplat.engine.color.build import load_extension_or_none
 
-        return bool(load_extension().set_flush_denormal_all(on))
-    except EngineError:  # the native extension could not be built: this thread only
-        torch.set_flush_denormal(on)
-        return False  # torch cannot read the mode back; off is the process default
+    # The build is tried once per process (one warning where it fails).
+    module = load_extension_or_none()
+    if module is not None:
+        return bool(module.set_flush_denormal_all(on))
+    torch.set_flush_denormal(on)  # the native extension could not be built: this thread only
+    return False  # torch cannot read the mode back; off is the process default
 
 
 @contextmanager

@@ -4,7 +4,10 @@ Every CPU run needs some of four extensions: the tile rasterizer and the EWA pro
 (always), the hash grid and fused MLPs of the neural colour field, and the fused photometric
 loss (training). They build once per source version and toolchain (see
 :mod:`engine.native_build`); :func:`load_kernels` loads the ones a task needs, and
-``sparsesplat build`` (:func:`build_all`) builds all of them ahead of the first job.
+``sparsesplat build`` (:func:`build_all`) builds all of them ahead of the first job. An
+extension that cannot be built on this CPU is not an error: its loader warns once, naming the
+torch implementation that runs instead and the slowdown, and its variant reads
+:data:`FALLBACK`.
 """
 
 from __future__ import annotations
@@ -27,24 +30,32 @@ class Kernel:
     module: str
     """Module with the loader function."""
     loader: str
-    """Function of ``module`` that loads the extension, building it on first use."""
+    """Function of ``module`` that loads the extension, building it on first use; None where
+    it cannot be built (after one warning)."""
     color: bool = False
     """Needed only with the neural colour field."""
     training: bool = False
     """Needed only for training."""
 
     def load(self) -> str:
-        """Load (build on first use); returns the instruction-set variant it runs."""
+        """Load (build on first use); returns the instruction-set variant it runs, or
+        :data:`FALLBACK` where it cannot be built on this CPU."""
         module = getattr(importlib.import_module(self.module), self.loader)()
-        return str(module.variant())
+        return FALLBACK if module is None else str(module.variant())
 
+
+FALLBACK = "torch"
+"""The variant of an extension that cannot be built here: its torch implementation runs."""
 
 KERNELS = (
-    Kernel("rasterizer", "sparsesplat.engine.raster.build", "load_extension"),
-    Kernel("projection", "sparsesplat.engine.raster.build", "load_projection_extension"),
-    Kernel("hash grid", "sparsesplat.engine.color.build", "load_extension", color=True),
+    Kernel("rasterizer", "sparsesplat.engine.raster.build", "load_extension_or_none"),
+    Kernel("projection", "sparsesplat.engine.raster.build", "load_projection_extension_or_none"),
+    Kernel("hash grid", "sparsesplat.engine.color.build", "load_extension_or_none", color=True),
     Kernel(
-        "photometric loss", "sparsesplat.engine.photometric.build", "load_extension", training=True
+        "photometric loss",
+        "sparsesplat.engine.photometric.build",
+        "load_extension_or_none",
+        training=True,
     ),
 )
 """Every native CPU extension of the engine."""

@@ -34,15 +34,52 @@ from types import ModuleType
 
 log = logging.getLogger(__name__)
 
-BASELINE_CFLAGS = ("-O3", "-mavx2", "-mfma", "-mf16c", "-fopenmp", "-fno-math-errno", "-std=c++17")
-"""Compiler flags every extension starts from: the portable x86-64-v3 baseline (AVX2, FMA,
-F16C) plus OpenMP. AVX-512 kernels live in translation units of their own, called only when the
-CPU reports AVX-512 at run time, so the build itself stays portable to any x86-64-v3 machine."""
+ISA_CFLAGS = {
+    "x86_64": ("-mavx2", "-mfma", "-mf16c"),
+    "aarch64": ("-march=armv8-a",),
+}
+"""The instruction-set flags of the baseline per CPU architecture (``platform.machine()``,
+normalized): on x86-64 the x86-64-v3 baseline (AVX2, FMA, F16C), whose AVX-512 kernels live in
+translation units of their own, called only when the CPU reports AVX-512 at run time, so the
+build stays portable to any x86-64-v3 machine; on aarch64 ARMv8-A, which includes NEON (Apple
+Silicon, Graviton), for the portable kernels. Any other architecture gets none: the portable
+kernels still build there where the compiler targets the machine, and a failed build falls back
+to the torch implementations (:meth:`NativeExtension.load_or_none`)."""
+_MACHINE_ALIASES = {"amd64": "x86_64", "arm64": "aarch64"}
+
+
+def cpu_architecture(machine: str | None = None) -> str:
+    """``machine`` (``platform.machine()`` when None) under the names of :data:`ISA_CFLAGS`
+    (macOS and Windows say ``arm64`` and ``AMD64``)."""
+    name = (platform.machine() if machine is None else machine).lower()
+    return _MACHINE_ALIASES.get(name, name)
+
+
+def baseline_cflags(machine: str | None = None) -> tuple[str, ...]:
+    """Compiler flags every extension starts from on ``machine`` (this one when None): -O3,
+    the architecture's :data:`ISA_CFLAGS`, OpenMP, no errno from math functions (so they
+    vectorize), C++17."""
+    isa = ISA_CFLAGS.get(cpu_architecture(machine), ())
+    return ("-O3", *isa, "-fopenmp", "-fno-math-errno", "-std=c++17")
+
+
+BASELINE_CFLAGS = baseline_cflags()
+"""This machine's :func:`baseline_cflags`."""
 NO_FP_CONTRACT = "-ffp-contract=off"
 """The flag that keeps every ``a * b + c`` two roundings (no fused multiply-add unless the
 source writes one), for kernels that must round as their torch reference does."""
-REQUIREMENTS = "needs g++ with AVX2 support and ninja"
-"""What every build needs; it heads the hint of a failed build's error."""
+
+
+def requirements(machine: str | None = None) -> str:
+    """What every build needs on ``machine`` (this one when None); it heads the hint of a
+    failed build's error."""
+    if cpu_architecture(machine) == "x86_64":
+        return "needs g++ with AVX2 support and ninja"
+    return "needs g++ and ninja"
+
+
+REQUIREMENTS = requirements()
+"""This machine's :func:`requirements`."""
 HEADER_SUFFIXES = (".h", ".hpp")
 """Files of the source folder that are hashed and staged besides the listed sources."""
 LDFLAGS = ("-fopenmp",)
@@ -124,7 +161,8 @@ def _building_notice(description: str, build_dir: Path, fresh: bool) -> Iterator
         yield
     finally:
         done.set()
-        log.warning("built the %s in %.0f s", description, time.monotonic() - started)
+    # Reached only when the build succeeded (a failure propagates from the yield).
+    log.warning("built the %s in %.0f s", description, time.monotonic() - started)
 
 
 def build_key(
@@ -216,12 +254,14 @@ class NativeExtension:
         on_failure: type[Exception],
         failure_hint: str,
         description: str,
+        fallback: str = "",
     ) -> None:
         """``name`` prefixes the module and build directory names (the content key follows
         it); ``on_failure`` is the typed error raised (with the compiler's output tail) when the
         build fails; its message names :data:`REQUIREMENTS` and then ``failure_hint`` (what to
         do instead, e.g. the switch to a torch implementation; empty for none); ``description``
-        names the extension in logs and errors."""
+        names the extension in logs and errors; ``fallback`` says what runs instead when it
+        cannot be built and how much slower (see :meth:`load_or_none`)."""
         self.name = name
         self.source_dir = source_dir
         self.sources = tuple(sources)
@@ -229,8 +269,10 @@ class NativeExtension:
         self.on_failure = on_failure
         self.failure_hint = failure_hint
         self.description = description
+        self.fallback = fallback
         self._lock = threading.Lock()
         self._module: ModuleType | None = None
+        self._failure: Exception | None = None
         _EXTENSIONS.append(weakref.ref(self))
 
     def files(self) -> list[str]:
@@ -245,6 +287,28 @@ class NativeExtension:
     def loaded(self) -> ModuleType | None:
         """The module if this process has loaded it already, else None (never builds)."""
         return self._module
+
+    def load_or_none(self) -> ModuleType | None:
+        """The compiled module (built on first use), or None where it cannot be built: for the
+        callers with a torch implementation to fall back on. The first failure logs one warning
+        (what failed on which CPU, ``fallback``, the compiler's last line); the build is not
+        tried again in this process, and later calls return None quietly."""
+        if self._module is not None:
+            return self._module
+        if self._failure is not None:
+            return None
+        try:
+            return self.load()
+        except self.on_failure as exc:
+            with self._lock:
+                first = self._failure is None
+                self._failure = exc
+            if first:
+                cause = str(exc).strip().splitlines()[-1:] or [type(exc).__name__]
+                log.warning("the %s could not be built on this CPU (%s): %s. Cause: %s",
+                            self.description, cpu_architecture(), self.fallback or
+                            "no fallback", cause[0][-300:])  # fmt: skip
+            return None
 
     def load(self) -> ModuleType:
         """Return the compiled module, building it on first use."""

@@ -170,6 +170,11 @@ class HashGrid(nn.Module):
                 f"n_features in {_NATIVE_FEATURES}; got x {x.dtype} on {x.device}, table "
                 f"{self.embeddings.dtype} on {self.embeddings.device}, n_features={self.n_features}"
             )
+        if suited and backend == "auto":
+            # Where the kernels cannot be built: the torch implementation (one warning).
+            from sparsesplat.engine.color.build import native_available
+
+            return native_available()
         return suited
 
     def forward(self, x: Tensor) -> Tensor:

@@ -27,6 +27,11 @@ _EXTENSION = NativeExtension(
     on_failure=PhotometricBuildError,
     failure_hint="set SPARSESPLAT_PHOTOMETRIC=torch to use the torch implementation instead",
     description="native photometric loss",
+    fallback=(
+        "the photometric, patch-normalized depth and warp-consistency losses run their torch"
+        " implementations instead (as with SPARSESPLAT_PHOTOMETRIC=torch), slower per training"
+        " iteration: dozens of full-image tensor operations where the kernels make one pass"
+    ),
 )
 
 
@@ -34,3 +39,14 @@ def load_extension() -> ModuleType:
     """Return the compiled extension, building it on first use; PhotometricBuildError on
     failure."""
     return _EXTENSION.load()
+
+
+def load_extension_or_none() -> ModuleType | None:
+    """The extension, or None where it cannot be built (one warning says the torch
+    implementations run instead, the first time; the build is not tried again)."""
+    return _EXTENSION.load_or_none()
+
+
+def native_available() -> bool:
+    """Whether the extension is (or can be) built here (see :func:`load_extension_or_none`)."""
+    return load_extension_or_none() is not None

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from sparsesplat.engine.photometric.build import load_extension
+from sparsesplat.engine.photometric.build import load_extension, native_available
 
 BACKENDS = ("auto", "native", "torch")
 """Accepted values of $SPARSESPLAT_PHOTOMETRIC ('auto' when unset: native where suited)."""
@@ -31,6 +31,13 @@ def backend() -> str:
     if value not in BACKENDS:
         raise ValueError(f"${BACKEND_ENV}: expected one of {BACKENDS}, got {value!r}")
     return value
+
+
+def _native_if_built(choice: str, suited: bool) -> bool:
+    """Suited inputs run natively, unless ``auto`` finds the extension cannot be built on this
+    machine: then the torch implementation (one warning, the first time). ``native`` insists
+    (a failed build raises)."""
+    return suited and (choice == "native" or native_available())
 
 
 def _suited(pred: Tensor, others: tuple[Tensor, ...]) -> bool:
@@ -58,7 +65,7 @@ def uses_native(pred: Tensor, *others: Tensor) -> bool:
             f"${BACKEND_ENV}=native needs float32 CPU (C, H, W) images of one shape and a "
             f"target without gradient; got {described}"
         )
-    return suited
+    return _native_if_built(choice, suited)
 
 
 class _NativeLoss(torch.autograd.Function):
@@ -130,7 +137,7 @@ def depth_norm_suited(depth: Tensor, target: Tensor) -> bool:
             f"${BACKEND_ENV}=native needs float32 CPU depth and target without gradient; got "
             f"{depth.dtype} on {depth.device} and {target.dtype} on {target.device}"
         )
-    return suited
+    return _native_if_built(choice, suited)
 
 
 def depth_norm_native(
@@ -180,7 +187,7 @@ def warp_l1_suited(*maps: Tensor | None) -> bool:
     if choice == "native" and not suited:
         described = ", ".join(f"{m.dtype} on {m.device}" for m in given)
         raise ValueError(f"${BACKEND_ENV}=native needs float32 CPU maps; got {described}")
-    return suited
+    return _native_if_built(choice, suited)
 
 
 def warp_l1_native(

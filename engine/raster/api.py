@@ -123,7 +123,7 @@ def rasterize(
     out = _dispatch(args, backend)
     if not opacity_depth or not torch.is_grad_enabled():
         out.opacity_depth = None
-    elif out.opacity_depth is None and backend != "cpu":
+    elif out.opacity_depth is None:  # not the native CPU kernel's (it routes it itself)
         empty = features.new_zeros(means.shape[0], 0)
         geometry_detached = args._replace(
             means=means.detach(), log_scales=log_scales.detach(), quats=quats.detach(),

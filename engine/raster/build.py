@@ -4,10 +4,12 @@ Two extensions: the tile rasterizer (``raster.cpp`` and the per-ISA kernels) and
 projection (``project.cpp``). They are separate modules because each ``torch.utils.cpp_extension``
 module has one pybind11 entry point, and the projection's build stays small and independent of
 the tile kernels'. Both are built and cached by :mod:`engine.native_build` (compiled at first
-use, reused by content key) from the shared baseline flags; the AVX-512 tile kernels live in
-their own translation unit and are only called when the CPU reports AVX-512 at run time. The
-projection is built with ``-ffp-contract=off`` so that each ``a * b + c`` rounds twice, like the
-separate torch ops of ``projection.project`` it restates.
+use, reused by content key) from the shared baseline flags of the machine's architecture; the
+AVX-512 tile kernels live in their own translation unit and are only called when the CPU reports
+AVX-512 at run time, and the portable kernels (generic vectors, NEON on aarch64) are the only
+ones on other CPUs (on x86 a third variant the tests select). The projection is built with
+``-ffp-contract=off`` so that each ``a * b + c`` rounds twice, like the separate torch ops of
+``projection.project`` it restates.
 """
 
 from __future__ import annotations
@@ -24,11 +26,18 @@ SOURCE_DIR = Path(__file__).resolve().parent / "cpu"
 _EXTENSION = NativeExtension(
     "sparsesplat_raster_cpu",
     SOURCE_DIR,
-    ("raster.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp"),
+    ("raster.cpp", "kernels_avx2.cpp", "kernels_avx512.cpp", "kernels_portable.cpp"),
     BASELINE_CFLAGS,
     on_failure=RasterError,
     failure_hint="",
     description="CPU rasterizer",
+    fallback=(
+        "rendering with the dense torch reference rasterizer instead (engine/raster/reference.py),"
+        " far slower: it evaluates every Gaussian at every pixel where the native kernels take"
+        " only those whose footprint reaches the pixel's tile, and for training keeps every"
+        " (pixel, Gaussian) pair for the backward, so its memory grows with pixels x Gaussians:"
+        " fit for small images and scenes only"
+    ),
 )
 
 _PROJECTION = NativeExtension(
@@ -39,6 +48,11 @@ _PROJECTION = NativeExtension(
     on_failure=RasterError,
     failure_hint="",
     description="CPU projection",
+    fallback=(
+        "projecting with the torch implementation instead (engine/raster/projection.py), a few"
+        " times slower: about a hundred small tensor operations each way where the kernel makes"
+        " one pass"
+    ),
 )
 
 
@@ -50,3 +64,15 @@ def load_extension() -> ModuleType:
 def load_projection_extension() -> ModuleType:
     """Return the compiled projection extension (built on first use); RasterError on failure."""
     return _PROJECTION.load()
+
+
+def load_extension_or_none() -> ModuleType | None:
+    """The tile rasterizer, or None where it cannot be built (one warning says what runs
+    instead, the first time)."""
+    return _EXTENSION.load_or_none()
+
+
+def load_projection_extension_or_none() -> ModuleType | None:
+    """The projection extension, or None where it cannot be built (one warning, the first
+    time)."""
+    return _PROJECTION.load_or_none()

@@ -8,8 +8,14 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from sparsesplat.engine.raster.build import load_extension, load_projection_extension
+from sparsesplat.engine.raster.build import (
+    load_extension,
+    load_extension_or_none,
+    load_projection_extension_or_none,
+)
 from sparsesplat.engine.raster.native_projection import project_native
+from sparsesplat.engine.raster.projection import project
+from sparsesplat.engine.raster.reference import rasterize_reference
 from sparsesplat.engine.raster.types import RasterInputs, RasterOutput
 
 
@@ -69,11 +75,18 @@ class _Blend(torch.autograd.Function):
 
 
 def rasterize_cpu(args: RasterInputs) -> RasterOutput:
-    """Render float32 CPU tensors with the native kernel (see ``rasterize`` for the contract)."""
+    """Render float32 CPU tensors with the native kernel (see ``rasterize`` for the contract).
+
+    Where the native kernels cannot be built (a CPU or compiler they do not support), the torch
+    implementations stand in, after one warning naming the slowdown (see ``build.py``): the
+    dense reference rasterizer in float32 for the tile kernels, the torch projection for the
+    projection kernel."""
     means, log_scales, quats, opacity_logits, features, camera, background, near, far, eps2d = args
-    ext = load_extension()  # build/load before any work so a build failure is the first error
-    load_projection_extension()
-    proj = project_native(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)
+    ext = load_extension_or_none()  # build/load before any work
+    if ext is None:
+        return rasterize_reference(args, dtype=torch.float32)
+    projector = project_native if load_projection_extension_or_none() is not None else project
+    proj = projector(means, log_scales, quats, opacity_logits, camera, near, far, eps2d)
     w, h = camera.width, camera.height
     radii = proj.radii.contiguous()
     tensors = (proj.means2d, proj.conics, proj.opacities, proj.depths, features, background)

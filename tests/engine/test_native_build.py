@@ -182,3 +182,66 @@ def test_a_failed_build_names_the_requirements_and_the_way_out(
     bare = NativeExtension("t", src, ["a.cpp"], ["-O3"], RasterError, "", "test ext")
     with pytest.raises(RasterError, match=r"\(needs g\+\+ with AVX2 support and ninja\): g\+\+"):
         bare.load()
+
+
+def test_baseline_flags_follow_the_cpu_architecture() -> None:
+    """x86-64 keeps the x86-64-v3 baseline; aarch64 (macOS says arm64) gets ARMv8-A, which has
+    NEON, and no x86 flag; any other machine no instruction-set flag at all."""
+    common = ("-fopenmp", "-fno-math-errno", "-std=c++17")
+    assert native_build.baseline_cflags("x86_64") == ("-O3", "-mavx2", "-mfma", "-mf16c", *common)
+    assert native_build.baseline_cflags("AMD64") == native_build.baseline_cflags("x86_64")
+    arm = native_build.baseline_cflags("aarch64")
+    assert arm == native_build.baseline_cflags("arm64") == ("-O3", "-march=armv8-a", *common)
+    assert native_build.baseline_cflags("riscv64") == ("-O3", *common)
+    assert native_build.requirements("aarch64") == "needs g++ and ninja"
+    assert native_build.baseline_cflags() == native_build.BASELINE_CFLAGS
+
+
+def test_an_extension_that_cannot_be_built_warns_once_and_is_not_retried(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """load_or_none: None where the build fails, with one warning naming the extension, the
+    CPU, the fallback (what runs instead, how much slower) and the compiler's complaint; the
+    build is not tried again in the process."""
+    from torch.utils import cpp_extension
+
+    calls = []
+
+    def fail(**_: object) -> None:
+        calls.append(1)
+        raise RuntimeError("build failed\ng++: error: unrecognized command-line option '-mavx2'")
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "ext"))
+    monkeypatch.setattr(cpp_extension, "load", fail)
+    src = _tree(tmp_path / "src", FILES)
+    fallback = "the torch implementation runs instead, 10x slower"
+    ext = NativeExtension("t", src, ["a.cpp"], ["-O3"], RasterError, "", "test ext", fallback)
+    with caplog.at_level("WARNING"):
+        assert ext.load_or_none() is None
+        assert ext.load_or_none() is None
+    warned = [r.getMessage() for r in caplog.records if "could not be built" in r.getMessage()]
+    assert len(warned) == 1 and len(calls) == 1, (warned, calls)
+    assert "the test ext could not be built on this CPU (" in warned[0]
+    assert fallback in warned[0] and "unrecognized command-line option '-mavx2'" in warned[0]
+
+
+def test_every_extension_says_what_runs_instead_and_how_much_slower() -> None:
+    """Each extension's fallback text names its torch stand-in and the slowdown; the
+    rasterizer's says the dense reference fits small images only."""
+    for ext in (raster_build._EXTENSION, raster_build._PROJECTION, color_build._EXTENSION,
+                photometric_build._EXTENSION):  # fmt: skip
+        assert "torch" in ext.fallback and "slower" in ext.fallback, ext.description
+    assert "small images" in raster_build._EXTENSION.fallback
+
+
+def test_a_kernel_that_cannot_be_built_reads_as_the_torch_fallback(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """load_kernels (the CLI's and the workers' set-up) does not fail on an extension that
+    cannot be built: its variant reads 'torch', the others load as usual."""
+    from sparsesplat.engine import kernels
+
+    monkeypatch.setattr(raster_build, "load_projection_extension_or_none", lambda: None)
+    variants = kernels.load_kernels(color=False, training=False)
+    assert variants["projection"] == kernels.FALLBACK, variants
+    assert variants["rasterizer"] != kernels.FALLBACK, variants

@@ -66,9 +66,9 @@ def test_build_command_builds_every_kernel_and_writes_ready(tmp_path: Path) -> N
     assert done.returncode == 0, done.stderr[-3000:]
     printed = json.loads(done.stdout.strip().splitlines()[-1])
     assert set(printed["variants"]) == {k.name for k in KERNELS}
-    assert set(printed["variants"].values()) <= {"avx2", "avx512", "avx2-f32", "avx512-f32"}, (
-        printed
-    )
+    # Native kernels, never the torch fallback: the build must work where the tests run.
+    native = {"avx2", "avx512", "avx2-f32", "avx512-f32", "portable", "portable-f32"}
+    assert set(printed["variants"].values()) <= native, printed
     got = read_status(status)
     assert (
         got is not None and got.state == KernelState.ready and got.variants == printed["variants"]

@@ -34,8 +34,12 @@ struct LevelArgs {
   void forward_level(const LevelArgs& a, int F);  \
   void backward_level(const LevelArgs& a, int F); \
   }
+#if defined(__x86_64__)
 HG_DECLARE(avx2)
 HG_DECLARE(avx512)
+#else
+HG_DECLARE(portable)
+#endif
 #undef HG_DECLARE
 
 
@@ -71,10 +75,16 @@ struct MlpGrads {
   void mlp_backward_range(const MlpArgs& a, int64_t begin, int64_t end, const MlpGrads& g, \
                           float* scratch);                                               \
   }
+#if defined(__x86_64__)
 MLP_DECLARE(avx2)
 MLP_DECLARE(avx512)
+#else
+MLP_DECLARE(portable)
+#endif
 #undef MLP_DECLARE
 
+#if defined(__x86_64__)
 // Whether the AVX-512 variants of the kernels run: the CPU reports avx512f/bw/dq/vl and
 // $SPARSESPLAT_HASHGRID_ISA is not "avx2" (that forces the baseline). hashgrid.cpp.
 bool use_avx512_kernels();
+#endif

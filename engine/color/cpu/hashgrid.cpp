@@ -28,6 +28,7 @@ std::vector<torch::Tensor> mlp_forward(torch::Tensor code, torch::Tensor sh, tor
 std::vector<torch::Tensor> mlp_backward(torch::Tensor grad, std::vector<torch::Tensor> saved,
                                         double scale);
 
+#if defined(__x86_64__)
 bool use_avx512_kernels() {
   static const bool use = [] {
     const char* force = std::getenv("SPARSESPLAT_HASHGRID_ISA");
@@ -38,6 +39,7 @@ bool use_avx512_kernels() {
   }();
   return use;
 }
+#endif
 
 namespace {
 
@@ -51,8 +53,12 @@ struct Variant {
 
 // The hash grid's level kernels for this CPU (use_avx512_kernels: common.h).
 Variant pick_variant() {
+#if defined(__x86_64__)
   if (use_avx512_kernels()) return {"avx512", avx512::forward_level, avx512::backward_level};
   return {"avx2", avx2::forward_level, avx2::backward_level};
+#else
+  return {"portable", portable::forward_level, portable::backward_level};
+#endif
 }
 
 const Variant& variant() {

@@ -16,12 +16,17 @@ namespace {
 using FwdFn = void (*)(const MlpArgs&, int64_t, int64_t);
 using BwdFn = void (*)(const MlpArgs&, int64_t, int64_t, const MlpGrads&, float*);
 
+#if defined(__x86_64__)
 FwdFn forward_fn() {
   return use_avx512_kernels() ? avx512::mlp_forward_range : avx2::mlp_forward_range;
 }
 BwdFn backward_fn() {
   return use_avx512_kernels() ? avx512::mlp_backward_range : avx2::mlp_backward_range;
 }
+#else
+FwdFn forward_fn() { return portable::mlp_forward_range; }
+BwdFn backward_fn() { return portable::mlp_backward_range; }
+#endif
 
 void check(const torch::Tensor& t, const char* name, int64_t rows, int64_t cols) {
   TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == torch::kFloat32 && t.dim() == 2,

@@ -1,6 +1,7 @@
 // The colour field's two bias-free MLPs, fused: forward and backward over one block of points at
 // a time, written once with GCC vector extensions and included by one translation unit per
-// instruction set (mlp_avx2.cpp, mlp_avx512.cpp define MLP_NS and MLP_AVX512).
+// instruction set (mlp_avx2.cpp, mlp_avx512.cpp define MLP_NS and MLP_AVX512; on CPUs other
+// than x86, mlp_portable.cpp defines MLP_PORTABLE: generic vectors, no intrinsics).
 //
 // Why not torch's GEMMs: every product here has an inner size of 3 to 80, where MKL reaches about
 // a third of this CPU's peak and packs its operands first, and each ReLU and its backward is one
@@ -13,7 +14,9 @@
 // point's outputs do not depend on the block or the thread that computed it. The weight
 // gradients sum a chunk's points block by block (mlp.cpp adds the chunks' sums in chunk order),
 // so they do not depend on the thread count either.
+#if !MLP_PORTABLE
 #include <immintrin.h>
+#endif
 
 #include <cmath>
 #include <cstdint>
@@ -39,6 +42,27 @@ static inline vf where_positive(vf m, vf x) {
   return (vf)_mm512_maskz_mov_ps(k, (__m512)x);
 }
 constexpr int kAccumulators = 16;  // vector registers one product tile accumulates in (of 32)
+#elif MLP_PORTABLE
+// GCC generic 16-byte vectors: one q register on aarch64's NEON (32 of them).
+constexpr int W = 4;
+typedef float vf __attribute__((vector_size(16)));
+static inline vf load(const float* p) {
+  vf v;
+  __builtin_memcpy(&v, p, sizeof v);
+  return v;
+}
+static inline void store(float* p, vf v) { __builtin_memcpy(p, &v, sizeof v); }
+static inline vf bcast(float x) { return vf{x, x, x, x}; }
+// fmaf lane by lane (GCC vectorizes it to fmla): fused, as the x86 intrinsics are.
+static inline vf fmadd(vf a, vf b, vf c) {
+  vf r;
+  for (int i = 0; i < W; ++i) r[i] = __builtin_fmaf(a[i], b[i], c[i]);
+  return r;
+}
+// As the x86 max(0, x): 0 > x ? 0 : x, so a NaN x passes (as torch.relu).
+static inline vf relu(vf x) { return vf{} > x ? vf{} : x; }
+static inline vf where_positive(vf m, vf x) { return m > vf{} ? x : vf{}; }
+constexpr int kAccumulators = 16;
 #else
 constexpr int W = 8;
 typedef float vf __attribute__((vector_size(32)));

@@ -25,8 +25,10 @@
 // are added in row order at the end, so the results do not depend on the thread count.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
-#include <immintrin.h>
 #include <omp.h>
+#if defined(__x86_64__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -51,11 +53,39 @@ inline void tap_range(const Window& win, int64_t i, int64_t H, int& t0, int& t1)
   t1 = (int)std::min<int64_t>(win.size, H - i + win.radius);
 }
 
-// The blurs are written with AVX2 intrinsics, 8 pixels of a row at a time with all taps summed
+// The blurs are written with AVX2 intrinsics (v8_* below), 8 pixels of a row at a time with all taps summed
 // in a register (the compiler's version kept the row of sums in memory, a load and a store per
 // tap). The scalar tails add the same products in the same tap order with the same FMAs, so a
 // pixel's value does not depend on whether it fell in a vector or in the tail.
 constexpr int64_t kLanes = 8;
+
+// The 8-lane operations the blurs use: AVX2 intrinsics on x86; elsewhere GCC generic vectors
+// (two q registers on aarch64's NEON) with fmaf lane by lane, fused as the intrinsic is.
+#if defined(__x86_64__)
+typedef __m256 v8;
+inline v8 v8_zero() { return _mm256_setzero_ps(); }
+inline v8 v8_set1(float x) { return _mm256_set1_ps(x); }
+inline v8 v8_load(const float* p) { return _mm256_loadu_ps(p); }
+inline void v8_store(float* p, v8 v) { _mm256_storeu_ps(p, v); }
+inline v8 v8_mul(v8 a, v8 b) { return _mm256_mul_ps(a, b); }
+inline v8 v8_fma(v8 a, v8 b, v8 c) { return _mm256_fmadd_ps(a, b, c); }
+#else
+typedef float v8 __attribute__((vector_size(32)));
+inline v8 v8_zero() { return v8{}; }
+inline v8 v8_set1(float x) { return v8{} + x; }
+inline v8 v8_load(const float* p) {
+  v8 v;
+  __builtin_memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void v8_store(float* p, v8 v) { __builtin_memcpy(p, &v, sizeof v); }
+inline v8 v8_mul(v8 a, v8 b) { return a * b; }
+inline v8 v8_fma(v8 a, v8 b, v8 c) {
+  v8 r;
+  for (int l = 0; l < 8; ++l) r[l] = __builtin_fmaf(a[l], b[l], c[l]);
+  return r;
+}
+#endif
 
 // out[j] = sum_t w[t] * pad[j + t] for j < W, where pad holds the row at offset radius with
 // `radius` zeros on either side (zero padding).
@@ -63,10 +93,9 @@ inline void horizontal(const float* __restrict pad, int64_t W, const Window& win
                        float* __restrict out) {
   int64_t j = 0;
   for (; j + kLanes <= W; j += kLanes) {
-    __m256 acc = _mm256_setzero_ps();
-    for (int t = 0; t < win.size; ++t)
-      acc = _mm256_fmadd_ps(_mm256_set1_ps(win.w[t]), _mm256_loadu_ps(pad + j + t), acc);
-    _mm256_storeu_ps(out + j, acc);
+    v8 acc = v8_zero();
+    for (int t = 0; t < win.size; ++t) acc = v8_fma(v8_set1(win.w[t]), v8_load(pad + j + t), acc);
+    v8_store(out + j, acc);
   }
   for (; j < W; ++j) {
     float acc = 0.f;
@@ -86,19 +115,19 @@ inline void vertical_moments(const float* __restrict x, const float* __restrict 
   const int64_t first = (i + t0 - win.radius) * W;
   int64_t j = 0;
   for (; j + kLanes <= W; j += kLanes) {
-    __m256 ax = _mm256_setzero_ps(), ap = ax, aq = ax;
+    v8 ax = v8_zero(), ap = ax, aq = ax;
     const float* xr = x + first + j;
     const float* yr = y + first + j;
     for (int t = t0; t < t1; ++t, xr += W, yr += W) {
-      const __m256 wt = _mm256_set1_ps(win.w[t]);
-      const __m256 xv = _mm256_loadu_ps(xr), yv = _mm256_loadu_ps(yr);
-      ax = _mm256_fmadd_ps(wt, xv, ax);
-      ap = _mm256_fmadd_ps(wt, _mm256_mul_ps(xv, xv), ap);
-      aq = _mm256_fmadd_ps(wt, _mm256_mul_ps(xv, yv), aq);
+      const v8 wt = v8_set1(win.w[t]);
+      const v8 xv = v8_load(xr), yv = v8_load(yr);
+      ax = v8_fma(wt, xv, ax);
+      ap = v8_fma(wt, v8_mul(xv, xv), ap);
+      aq = v8_fma(wt, v8_mul(xv, yv), aq);
     }
-    _mm256_storeu_ps(vx + j, ax);
-    _mm256_storeu_ps(vp + j, ap);
-    _mm256_storeu_ps(vq + j, aq);
+    v8_store(vx + j, ax);
+    v8_store(vp + j, ap);
+    v8_store(vq + j, aq);
   }
   for (; j < W; ++j) {
     float ax = 0.f, ap = 0.f, aq = 0.f;
@@ -126,17 +155,17 @@ inline void vertical3(const float* __restrict a, const float* __restrict b,
   const int64_t first = (i + t0 - win.radius) * W;
   int64_t j = 0;
   for (; j + kLanes <= W; j += kLanes) {
-    __m256 sa = _mm256_setzero_ps(), sb = sa, sc = sa;
+    v8 sa = v8_zero(), sb = sa, sc = sa;
     int64_t off = first + j;
     for (int t = t0; t < t1; ++t, off += W) {
-      const __m256 wt = _mm256_set1_ps(win.w[t]);
-      sa = _mm256_fmadd_ps(wt, _mm256_loadu_ps(a + off), sa);
-      sb = _mm256_fmadd_ps(wt, _mm256_loadu_ps(b + off), sb);
-      sc = _mm256_fmadd_ps(wt, _mm256_loadu_ps(c + off), sc);
+      const v8 wt = v8_set1(win.w[t]);
+      sa = v8_fma(wt, v8_load(a + off), sa);
+      sb = v8_fma(wt, v8_load(b + off), sb);
+      sc = v8_fma(wt, v8_load(c + off), sc);
     }
-    _mm256_storeu_ps(va + j, sa);
-    _mm256_storeu_ps(vb + j, sb);
-    _mm256_storeu_ps(vc + j, sc);
+    v8_store(va + j, sa);
+    v8_store(vb + j, sb);
+    v8_store(vc + j, sc);
   }
   for (; j < W; ++j) {
     float sa = 0.f, sb = 0.f, sc = 0.f;
@@ -319,7 +348,11 @@ std::vector<torch::Tensor> forward(torch::Tensor pred, torch::Tensor target, tor
   return {torch::tensor((float)loss, pred.options()).reshape({}), grad};
 }
 
+#if defined(__x86_64__)
 std::string variant_name() { return "avx2"; }
+#else
+std::string variant_name() { return "portable"; }
+#endif
 
 }  // namespace
 

@@ -59,13 +59,17 @@ struct TileBwd {
   bool geometry;            // false: only opacity, depth and feature gradients are wanted
 };
 
-namespace avx2 {
-void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc);
-void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad);
-void reciprocal(const float* x, const float* estimate, float* out, int64_t n);
-}  // namespace avx2
-namespace avx512 {
-void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc);
-void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad);
-void reciprocal(const float* x, const float* estimate, float* out, int64_t n);
-}  // namespace avx512
+// The tile kernels of each variant (kernels.h, one translation unit each); the x86 ones exist
+// only in x86 builds, the portable one everywhere.
+#define RASTER_DECLARE(NS)                                                                  \
+  namespace NS {                                                                           \
+  void forward_tile(const TileFwd& a, int tile_x, int tile_y, float* acc);                 \
+  void backward_tile(const TileBwd& a, int tile_x, int tile_y, float* scratch, float* grad); \
+  void reciprocal(const float* x, const float* estimate, float* out, int64_t n);           \
+  }
+#if defined(__x86_64__)
+RASTER_DECLARE(avx2)
+RASTER_DECLARE(avx512)
+#endif
+RASTER_DECLARE(portable)
+#undef RASTER_DECLARE

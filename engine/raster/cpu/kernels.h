@@ -1,11 +1,20 @@
 // Per-tile forward and backward blending kernels, written once with GCC vector extensions.
 //
 // This header is included by one translation unit per instruction set (kernels_avx2.cpp,
-// kernels_avx512.cpp); each defines RASTER_NS (the namespace) and RASTER_AVX512 before including
-// it, so the same source is compiled for both targets and raster.cpp picks one at run time.
+// kernels_avx512.cpp, kernels_portable.cpp); each defines RASTER_NS (the namespace) and
+// RASTER_AVX512 (and RASTER_PORTABLE) before including it, so the same source is compiled for
+// each target and raster.cpp picks one at run time.
 // A tile is 16x16 pixels and one tile row (16 floats) is one vector: one zmm register on AVX-512,
 // an explicit pair of ymm halves on AVX2 (see the types below). No OpenMP in here: raster.cpp parallelizes over tiles.
+// RASTER_PORTABLE replaces the x86 vector layer below (types, masks, min/max, fused operations,
+// sqrt/ceil/floor, the reciprocal's estimate) by vec_portable.h's, in generic vectors only: the
+// variant that builds for any CPU (NEON on aarch64). Everything else is shared by all variants.
+#ifndef RASTER_PORTABLE
+#define RASTER_PORTABLE 0
+#endif
+#if !RASTER_PORTABLE
 #include <immintrin.h>
+#endif
 
 #include <cmath>
 #include <cstdint>
@@ -14,6 +23,7 @@
 
 namespace RASTER_NS {
 
+#if !RASTER_PORTABLE
 // Sum of the 8 lanes of a ymm register.
 static inline float hsum8(__m256 s8) {
   __m128 s4 = _mm_add_ps(_mm256_castps256_ps128(s8), _mm256_extractf128_ps(s8, 1));
@@ -21,6 +31,7 @@ static inline float hsum8(__m256 s8) {
   s4 = _mm_add_ss(s4, _mm_movehdup_ps(s4));
   return _mm_cvtss_f32(s4);
 }
+#endif
 
 #if RASTER_AVX512
 // One zmm register per tile row: GCC vector extensions map 1:1 onto AVX-512.
@@ -76,6 +87,8 @@ static inline void add_lane_sums(const vf* v, int n, float* out) {
   const __mmask16 m = (__mmask16)((1u << n) - 1u);
   _mm512_mask_storeu_ps(out, m, _mm512_add_ps(_mm512_maskz_loadu_ps(m, out), (__m512)sums));
 }
+#elif RASTER_PORTABLE
+#include "vec_portable.h"
 #else
 // AVX2 has no 512-bit registers, and GCC lowers 64-byte generic vectors poorly there: comparisons,
 // ?: selects and __builtin_convertvector on them are scalarized lane by lane, and values bounce
@@ -182,6 +195,8 @@ static inline void add_lane_sums(const vf* v, int n, float* out) {
 
 // dst = v. On AVX2 a plain aggregate copy of a value that stays live afterwards is done by GCC in
 // 16-byte pieces through a stack temporary; copying the halves keeps it to two ymm stores.
+#if !RASTER_PORTABLE  // (portable: vec_portable.h, as vmin/vmax, the fused operations,
+                      // vrcp_estimate and vsqrt/vceil/vfloor below)
 static inline void assign(vf& dst, vf v) {
 #if RASTER_AVX512
   dst = v;
@@ -190,6 +205,7 @@ static inline void assign(vf& dst, vf v) {
   dst.h[1] = v.h[1];
 #endif
 }
+#endif
 
 static inline vf splat(float x) { return vf{} + x; }
 static inline vi splati(int32_t x) { return vi{} + x; }
@@ -198,7 +214,7 @@ static inline vi splati(int32_t x) { return vi{} + x; }
 #if RASTER_AVX512
 static inline vf vmin(vf a, vf b) { return vsel(a < b, a, b); }
 static inline vf vmax(vf a, vf b) { return vsel(a > b, a, b); }
-#else
+#elif !RASTER_PORTABLE
 static inline vf vmin(vf a, vf b) {
   return vf{{(hf)_mm256_min_ps((__m256)a.h[0], (__m256)b.h[0]),
              (hf)_mm256_min_ps((__m256)a.h[1], (__m256)b.h[1])}};
@@ -312,7 +328,7 @@ static inline vf vfmadd(vf a, vf b, vf c) {
 static inline vf vfnmadd(vf a, vf b, vf c) {
   return (vf)_mm512_fnmadd_ps((__m512)a, (__m512)b, (__m512)c);
 }
-#else
+#elif !RASTER_PORTABLE
 static inline vf vfmadd(vf a, vf b, vf c) {
   return vf{{(hf)_mm256_fmadd_ps((__m256)a.h[0], (__m256)b.h[0], (__m256)c.h[0]),
              (hf)_mm256_fmadd_ps((__m256)a.h[1], (__m256)b.h[1], (__m256)c.h[1])}};
@@ -326,6 +342,7 @@ static inline vf vfnmadd(vf a, vf b, vf c) {
 // The hardware's reciprocal estimate of x: AVX-512's vrcp14ps (relative error < 2^-14), AVX2's
 // vrcpps (< 1.5 * 2^-12). The estimate's actual values are the vendor's: Intel and AMD CPUs
 // return different estimates for the same x, both within that bound.
+#if !RASTER_PORTABLE
 static inline vf vrcp_estimate(vf x) {
 #if RASTER_AVX512
   return (vf)_mm512_rcp14_ps((__m512)x);
@@ -333,6 +350,7 @@ static inline vf vrcp_estimate(vf x) {
   return vf{{(hf)_mm256_rcp_ps((__m256)x.h[0]), (hf)_mm256_rcp_ps((__m256)x.h[1])}};
 #endif
 }
+#endif
 
 // 1 / x from an estimate r with relative error d (r = (1 - d) / x, |d| <= 1.5 * 2^-12), by the
 // third-order step r (1 + e + e^2) with e = 1 - x r = d computed by one fused operation: the
@@ -360,7 +378,7 @@ static inline vf vceil(vf x) {
 static inline vf vfloor(vf x) {
   return (vf)_mm512_roundscale_ps((__m512)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
 }
-#else
+#elif !RASTER_PORTABLE
 static inline vf vsqrt(vf x) {
   return vf{{(hf)_mm256_sqrt_ps((__m256)x.h[0]), (hf)_mm256_sqrt_ps((__m256)x.h[1])}};
 }

@@ -6,14 +6,17 @@
 // depth gradient), the clamp of the Jacobian's x/z and y/z (zero gradient outside the limits) and
 // the clamp of the quaternion's norm. The torch version runs ~100 small ops each way; here one
 // pass over the Gaussians does each direction, 8 Gaussians per AVX2 vector (GCC vector
-// extensions; branches become lane selects). The backward recomputes the per-Gaussian forward
+// extensions; branches become lane selects; the few x86 intrinsics have builtin twins for other
+// CPUs, where GCC lowers each vector to the target's, e.g. two NEON registers on aarch64). The backward recomputes the per-Gaussian forward
 // quantities from the inputs instead of saving them: a few hundred flops per Gaussian are cheaper
 // than writing and reading back ~60 floats per Gaussian.
 //
 // Built with -ffp-contract=off so each a * b + c rounds twice, as the separate torch ops do.
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
+#if defined(__x86_64__)
 #include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -38,7 +41,30 @@ inline V splat(float x) { return V{x, x, x, x, x, x, x, x}; }
 // behaves as in the scalar code and in torch.clamp.
 inline V vmax(V a, V b) { return a < b ? b : a; }
 inline V vmin(V a, V b) { return b < a ? b : a; }
+#if defined(__x86_64__)
 inline V vsqrt(V x) { return (V)_mm256_sqrt_ps((__m256)x); }
+inline V vfloor(V x) {
+  return (V)_mm256_round_ps((__m256)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+}
+inline V vfma(V a, V b, V c) { return (V)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c); }
+#else
+// Lane loops of the builtins (GCC vectorizes them); fmaf is fused even without a vector FMA.
+inline V vsqrt(V x) {
+  V r;
+  for (int l = 0; l < L; ++l) r[l] = __builtin_sqrtf(x[l]);
+  return r;
+}
+inline V vfloor(V x) {
+  V r;
+  for (int l = 0; l < L; ++l) r[l] = __builtin_floorf(x[l]);
+  return r;
+}
+inline V vfma(V a, V b, V c) {
+  V r;
+  for (int l = 0; l < L; ++l) r[l] = __builtin_fmaf(a[l], b[l], c[l]);
+  return r;
+}
+#endif
 inline VI visfinite(V x) { return (x - x) == splat(0.0f); }  // inf - inf and NaN are NaN
 inline V vselect(VI m, V a, V b) { return m ? a : b; }
 
@@ -47,18 +73,17 @@ inline V vselect(VI m, V a, V b) { return m ? a : b; }
 // results in the subnormal range stay right (sigmoid(-100) must be 0, as in torch, not 4e-39).
 inline V vexp(V x) {
   const V xc = vmin(vmax(x, splat(-104.0f)), splat(89.0f));
-  const V fx = (V)_mm256_round_ps((__m256)(xc * 1.44269504088896341f + 0.5f),
-                                  _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  const V fx = vfloor(xc * 1.44269504088896341f + 0.5f);
   V r = xc - fx * 0.693359375f;
   r = r + fx * 2.12194440e-4f;
   const V r2 = r * r;
   V p = splat(1.9875691500e-4f);
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r, (__m256)splat(1.3981999507e-3f));
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r, (__m256)splat(8.3334519073e-3f));
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r, (__m256)splat(4.1665795894e-2f));
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r, (__m256)splat(1.6666665459e-1f));
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r, (__m256)splat(5.0000001201e-1f));
-  p = (V)_mm256_fmadd_ps((__m256)p, (__m256)r2, (__m256)(r + 1.0f));
+  p = vfma(p, r, splat(1.3981999507e-3f));
+  p = vfma(p, r, splat(8.3334519073e-3f));
+  p = vfma(p, r, splat(4.1665795894e-2f));
+  p = vfma(p, r, splat(1.6666665459e-1f));
+  p = vfma(p, r, splat(5.0000001201e-1f));
+  p = vfma(p, r2, r + 1.0f);
   const VI n = __builtin_convertvector(fx, VI);  // in [-150, 129]
   const VI n1 = n >> 1, n2 = n - n1;              // each half in [-75, 65]: a normal power of 2
   V y = p * (V)((n1 + 127) << 23);
@@ -117,10 +142,23 @@ inline VL lo_half(VI m) {
 inline VL hi_half(VI m) {
   return __builtin_convertvector(__builtin_shufflevector(m, m, 4, 5, 6, 7), VL);
 }
+#if defined(__x86_64__)
 inline VD vsqrtd(VD x) { return (VD)_mm256_sqrt_pd((__m256d)x); }
 inline VD vceild(VD x) {
   return (VD)_mm256_round_pd((__m256d)x, _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC);
 }
+#else
+inline VD vsqrtd(VD x) {
+  VD r;
+  for (int l = 0; l < 4; ++l) r[l] = __builtin_sqrt(x[l]);
+  return r;
+}
+inline VD vceild(VD x) {
+  VD r;
+  for (int l = 0; l < 4; ++l) r[l] = __builtin_ceil(x[l]);
+  return r;
+}
+#endif
 
 // Camera and projection constants, rounded to float32 where torch rounds a Python scalar to the
 // float32 tensor's dtype.
@@ -318,7 +356,11 @@ inline void store(float* out, int64_t i, int n, const V (&vs)[K]) {
 
 }  // namespace
 
+#if defined(__x86_64__)
 std::string variant_name() { return "avx2-f32"; }
+#else
+std::string variant_name() { return "portable-f32"; }
+#endif
 
 // Returns {means2d (N,2), conics (N,3), depths (N), opacities (N), radii (N,2) int32}.
 // cam = [centre (3, float64), rotation (9, row-major), fx, fy, cx, cy, near, far, eps2d].

@@ -29,6 +29,7 @@ struct Variant {
   RcpFn rcp;
 };
 
+#if defined(__x86_64__)
 bool cpu_has_avx512() {
   __builtin_cpu_init();
   return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
@@ -38,12 +39,35 @@ bool cpu_has_avx512() {
 const Variant kAvx2 = {"avx2", avx2::forward_tile, avx2::backward_tile, avx2::reciprocal};
 const Variant kAvx512 = {"avx512", avx512::forward_tile, avx512::backward_tile,
                          avx512::reciprocal};
+#endif
+// Generic vectors only (vec_portable.h): the kernels of every other CPU (NEON on aarch64), and
+// on x86 a variant the tests select to check the same code natively.
+const Variant kPortable = {"portable", portable::forward_tile, portable::backward_tile,
+                           portable::reciprocal};
 
-// The kernel variant for this CPU; SPARSESPLAT_RASTER_ISA=avx2 forces the baseline.
+// The variants this CPU can run, the default first: AVX-512 where the CPU has it, then the
+// AVX2 baseline, then the portable kernels (x86 builds); the portable kernels alone elsewhere.
+std::vector<const Variant*> runnable_variants() {
+#if defined(__x86_64__)
+  if (cpu_has_avx512()) return {&kAvx512, &kAvx2, &kPortable};
+  return {&kAvx2, &kPortable};
+#else
+  return {&kPortable};
+#endif
+}
+
+const Variant* find_variant(const std::string& name) {
+  for (const Variant* v : runnable_variants())
+    if (name == v->name) return v;
+  return nullptr;
+}
+
+// The kernel variant for this CPU; SPARSESPLAT_RASTER_ISA names one to force instead (avx2 for
+// the baseline on an AVX-512 CPU, portable; an unknown or unsupported name is ignored).
 const Variant* pick_variant() {
   const char* force = std::getenv("SPARSESPLAT_RASTER_ISA");
-  const bool want_avx2 = force && std::string(force) == "avx2";
-  return !want_avx2 && cpu_has_avx512() ? &kAvx512 : &kAvx2;
+  const Variant* forced = force ? find_variant(force) : nullptr;
+  return forced ? forced : runnable_variants().front();
 }
 
 // The variant in use. Read once at the start of each forward/backward call, so switching it
@@ -56,16 +80,23 @@ std::atomic<const Variant*>& current_variant() {
 const Variant& variant() { return *current_variant().load(); }
 
 std::vector<std::string> available_variants() {
-  std::vector<std::string> names{kAvx2.name};
-  if (cpu_has_avx512()) names.push_back(kAvx512.name);
+  std::vector<std::string> names;
+  for (const Variant* v : runnable_variants()) names.push_back(v->name);
   return names;
 }
 
 // Selects the variant by name; returns the previous one's. Unknown or unsupported: error.
 std::string set_variant(const std::string& name) {
-  const Variant* want = name == kAvx2.name ? &kAvx2 : name == kAvx512.name ? &kAvx512 : nullptr;
-  TORCH_CHECK(want != nullptr, "unknown rasterizer kernel variant '", name, "' (avx2, avx512)");
-  TORCH_CHECK(want != &kAvx512 || cpu_has_avx512(), "this CPU has no AVX-512 (avx512f/bw/dq/vl)");
+  const Variant* want = find_variant(name);
+  if (want == nullptr) {
+#if defined(__x86_64__)
+    TORCH_CHECK(name != kAvx512.name, "this CPU has no AVX-512 (avx512f/bw/dq/vl)");
+#endif
+    std::string names;
+    for (const std::string& n : available_variants()) names += (names.empty() ? "" : ", ") + n;
+    TORCH_CHECK(false, "unknown rasterizer kernel variant '", name, "' (this CPU runs: ", names,
+                ")");
+  }
   return current_variant().exchange(want)->name;
 }
 

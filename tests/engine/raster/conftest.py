@@ -1,11 +1,13 @@
 """The rasterizer kernel variant as a test parameter.
 
-The native rasterizer has one kernel source compiled for two instruction sets (AVX2, the
-baseline every x86-64-v3 CPU runs, and AVX-512). Both variants are the same build on every
+The native rasterizer has one kernel source compiled for three targets on x86 (AVX2, the
+baseline every x86-64-v3 CPU runs, AVX-512, and the portable generic-vector kernels that are the
+only ones on other CPUs, NEON on aarch64). All variants are the same build on every x86
 machine, so a test run on an AVX-512 CPU can exercise the AVX2 kernels in-process exactly as an
 AVX2-only CPU runs them (except for the CPU's own reciprocal estimate, which
-``test_reciprocal.py`` covers for any vendor). ``raster_isa`` runs a test once per variant this
-CPU can execute; the AVX-512 case is skipped, by name, where the CPU lacks it.
+``test_reciprocal.py`` covers for any vendor), and the portable kernels' numerics natively
+(``test_arm64_emulated.py`` runs them compiled for aarch64). ``raster_isa`` runs a test once per
+variant this CPU can execute; a variant it lacks is skipped, by name.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import pytest
 
 from sparsesplat.engine.raster.build import load_extension
 
-ISAS = ("avx2", "avx512")
+ISAS = ("avx2", "avx512", "portable")
 """The kernel variants of the native rasterizer."""
 
 

@@ -395,18 +395,30 @@ def test_rasterize_cpu_matches_torch_projection_pipeline(seed: int) -> None:
     assert (((out.radii - ref.radii).abs() <= slack) | ~sure).all(), f"{msg}: radii differ"
 
 
-def test_build_failure_raises_raster_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A failed build of the projection surfaces as RasterError with the compiler's output."""
+def test_build_failure_raises_raster_error_and_rendering_falls_back(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A failed build of the projection surfaces as RasterError with the compiler's output
+    from its loader; a render warns once, naming the torch projection it uses instead, and
+    still renders (the tile kernels are built)."""
     from torch.utils import cpp_extension
 
     def broken(**kwargs: object) -> None:
         raise RuntimeError("project.cpp:1:1: error: expected unqualified-id")
 
+    build.load_extension()  # the tile kernels, built before the compiler breaks
+    # Both restored after the test: the failure must not outlive it in this process.
     monkeypatch.setattr(build._PROJECTION, "_module", None)
+    monkeypatch.setattr(build._PROJECTION, "_failure", None)
     monkeypatch.setattr(cpp_extension, "load", broken)
     assert isinstance(build._PROJECTION, native_build.NativeExtension)
     with pytest.raises(RasterError, match="expected unqualified-id"):
         build.load_projection_extension()
     gs = random_gaussians(3, 0)
-    with pytest.raises(RasterError, match="CPU projection"):
+    with caplog.at_level("WARNING"):
+        out = rasterize(*gs.tensors(), camera(), backend="cpu")
         rasterize(*gs.tensors(), camera(), backend="cpu")
+    warned = [r.getMessage() for r in caplog.records if "could not be built" in r.getMessage()]
+    assert len(warned) == 1 and "the CPU projection" in warned[0], warned
+    assert "torch implementation" in warned[0] and "expected unqualified-id" in warned[0]
+    assert out.stats is not None  # the native tile kernels ran
