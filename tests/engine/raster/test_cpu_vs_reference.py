@@ -87,6 +87,10 @@ def test_long_tile_lists_match_reference(opacity: float, seed: int, raster_isa: 
 SWEEP_SEEDS = range(50)
 """Fixed seeds of the sweeps below: a case that fails on one seed in four (issue 59's AMD CPUs
 before the reciprocal fix) fails here with probability 1 - 0.75^50 > 0.99999."""
+PORTABLE_SWEEP_SEEDS = range(10)
+"""The portable kernels' sweep: they take no hardware estimate (their reciprocal starts from
+a division), so their error has no vendor-dependent part to hunt for; ten seeds keep them
+checked on these cases at a fifth of the suite's time."""
 
 
 @pytest.mark.parametrize("case", ["long lists o=0.012", "long lists o=0.02", "saturated"])
@@ -94,7 +98,8 @@ def test_long_lists_and_saturation_over_fixed_seeds(case: str, raster_isa: str) 
     """The cases where float32 error compounds along a pixel's list, over SWEEP_SEEDS: every
     seed must pass; the message lists each failing seed with its figures."""
     failures = []
-    for s in SWEEP_SEEDS:
+    seeds = PORTABLE_SWEEP_SEEDS if raster_isa == "portable" else SWEEP_SEEDS
+    for s in seeds:
         try:
             if case == "saturated":
                 _check_saturated_scene(s)
@@ -102,7 +107,7 @@ def test_long_lists_and_saturation_over_fixed_seeds(case: str, raster_isa: str) 
                 _check_long_lists(float(case.rsplit("=", 1)[1]), s)
         except AssertionError as e:
             failures.append(f"seed {s}: {str(e).splitlines()[0]}")
-    assert not failures, f"{case} on {raster_isa}: {len(failures)} of {len(SWEEP_SEEDS)} " + (
+    assert not failures, f"{case} on {raster_isa}: {len(failures)} of {len(seeds)} " + (
         "seeds failed:\n" + "\n".join(failures)
     )
 
