@@ -260,6 +260,7 @@ sys.meta_path.insert(0, Block())
 """
 
 
+@pytest.mark.shared_data
 def test_sdk_without_numpy_or_pillow(tmp_path: Path) -> None:
     """The base install submits files and folders of the JSON formats; array/image calls say
     which extra to install."""
