@@ -8,6 +8,17 @@ import platform
 from pathlib import Path
 from typing import Any
 
+SHARED_SCENES = {
+    "flower": "nerf_llff_data/flower",
+    "horns": "nerf_llff_data/horns",
+    "mic": "nerf_synthetic/mic",
+    "dtu_scan24": "dtu/dtu_scan24",
+    "dtu_scan37": "dtu/dtu_scan37",
+    "beer_can": "nerf_llff_data/beer_can",
+    "juicebox_table": "nerf_llff_data/juicebox_table",
+    "fox": "instant_ngp/fox",
+}
+"""Scene name -> folder under the shared data root (the scenes of ../shared/data)."""
 RESULTS_DIR_ENV = "SPARSESPLAT_BENCH_DIR"
 """Environment variable overriding where results are written (default: <repo>/bench-results)."""
 

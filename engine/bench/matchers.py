@@ -28,18 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
+from sparsesplat.engine.bench.common import (
+    SHARED_SCENES,
+    format_table,
+    machine_info,
+    results_dir,
+)
 from sparsesplat.engine.bench.quality import default_data_root
 
-SCENES = {
-    "flower": "nerf_llff_data/flower",
-    "horns": "nerf_llff_data/horns",
-    "mic": "nerf_synthetic/mic",
-    "dtu_scan24": "dtu/dtu_scan24",
-    "dtu_scan37": "dtu/dtu_scan37",
-    "beer_can": "nerf_llff_data/beer_can",
-    "juicebox_table": "nerf_llff_data/juicebox_table",
-}
+SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""
 DEFAULT_SCENES = ["flower", "horns", "mic", "dtu_scan24", "beer_can"]
 """Scenes measured without ``--scenes``."""
