@@ -14,6 +14,7 @@ from sparsesplat.engine.match.result import MatchSet
 from sparsesplat.engine.match.settings import METHODS, MatchSettings
 from sparsesplat.engine.match.triangulate import (
     MatchedPoints,
+    Observations,
     TriangulationSettings,
     matched_start,
 )
@@ -25,6 +26,7 @@ __all__ = [
     "MatchSettings",
     "MatchedPoints",
     "MissingMatchDependency",
+    "Observations",
     "TriangulationSettings",
     "cached_match",
     "content_key",

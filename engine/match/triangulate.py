@@ -51,6 +51,23 @@ class TriangulationSettings:
 
 
 @dataclass
+class Observations:
+    """The kept points' observations, in flat arrays (one row per point and photo)."""
+
+    point: np.ndarray
+    """(O,) int64 index of the observed point in :class:`MatchedPoints`."""
+    view: np.ndarray
+    """(O,) int64 photo index."""
+    xy: np.ndarray
+    """(O, 2) float32 pixel coordinates (pixel centres at +0.5, the engine's convention)."""
+
+    def in_view(self, view: int) -> tuple[np.ndarray, np.ndarray]:
+        """(point indices (K,), pixel coordinates (K, 2)) of the observations in ``view``."""
+        rows = self.view == view
+        return self.point[rows], self.xy[rows]
+
+
+@dataclass
 class MatchedPoints:
     """The matched start: one row per kept point."""
 
@@ -66,6 +83,8 @@ class MatchedPoints:
     """(N,) float32 triangulation angle (degrees)."""
     views: np.ndarray
     """(N,) int32 number of photos observing the point."""
+    observations: Observations
+    """Where each kept point was seen: one row per (point, photo)."""
     counts: dict[str, int] = field(default_factory=dict)
     """How many tracks each step kept or dropped: 'tracks', 'conflicts', 'behind',
     'error', 'angle', 'kept'."""
@@ -279,5 +298,10 @@ def matched_start(
         errors=worst[wide].astype(np.float32),
         angles=angles[wide].astype(np.float32),
         views=tracks.lengths()[wide].astype(np.int32),
+        observations=Observations(
+            point=renumber[tracks.track[keep_obs]].astype(np.int64),
+            view=tracks.view[keep_obs].astype(np.int64),
+            xy=tracks.xy[keep_obs].astype(np.float32),
+        ),
         counts=counts,
     )

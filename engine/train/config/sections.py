@@ -71,6 +71,11 @@ class InitConfig:
     smaller) pass ``dense_min_confidence``, the most confident pixels are taken instead, this
     many (pixels of zero confidence never); the run's ``init`` note says how far the cut went
     down. 0: no floor."""
+    add_matched: bool = False
+    """Add the matched start to the init's points: the learned matches between the training
+    photos (``matches``) triangulated with the training cameras, coloured from the photos
+    (``engine/match/triangulate.py``). Without the ``match`` extra, or when matching finds
+    nothing, the init is left as it is and ``metrics['matches']`` says why."""
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid field."""
@@ -419,6 +424,77 @@ class ConsistencyConfig:
         """Raise :class:`ConfigError` naming the first invalid field."""
         if not (math.isfinite(self.weight) and self.weight >= 0.0):
             raise ConfigError(f"consistency.weight must be >= 0, got {self.weight}")
+
+
+MatcherName = Literal["xfeat-lighterglue", "xfeat-semidense", "xfeat-mnn", "disk-lightglue"]
+"""The matchers of ``engine/match`` (``engine.match.settings.METHODS``)."""
+
+
+@dataclass(frozen=True)
+class MatchesConfig:
+    """``matches``: the learned matches between the training photos and their triangulation
+    with the training cameras (``engine/match``), computed once per run, before the first
+    iteration, when ``init.add_matched`` or the correspondence term uses them (never
+    otherwise). Their seconds count as training seconds (the run's clock starts with them)."""
+
+    method: MatcherName = "xfeat-semidense"
+    """The matcher. XFeat's semi-dense matcher triangulated 3x the points of the sparse
+    XFeat + LighterGlue on flower and 1.6x on horns, closer to the plane sweep's depths
+    (docs/experiments/2026-11-28-matchers.md)."""
+    keypoints: int = 0
+    """Keypoints (semi-dense: coarse features) per photo; 0: the matcher's default."""
+    min_side: int = 800
+    """Photos whose longer side is shorter are enlarged to it before matching (0: never)."""
+    max_error_px: float = 2.0
+    """A triangulated point is kept when it reprojects within this many pixels in every
+    photo that sees it."""
+    min_angle_deg: float = 1.0
+    """... and was seen under at least this triangulation angle (degrees)."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if self.keypoints != 0 and self.keypoints < 8:
+            raise ConfigError(f"matches.keypoints must be 0 or >= 8, got {self.keypoints}")
+        if self.min_side < 0:
+            raise ConfigError(f"matches.min_side must be >= 0, got {self.min_side}")
+        if not (math.isfinite(self.max_error_px) and self.max_error_px > 0):
+            raise ConfigError(f"matches.max_error_px must be > 0, got {self.max_error_px}")
+        if not (math.isfinite(self.min_angle_deg) and 0 <= self.min_angle_deg < 90):
+            raise ConfigError(f"matches.min_angle_deg must be in [0, 90), got {self.min_angle_deg}")
+
+
+@dataclass(frozen=True)
+class CorrespondenceConfig:
+    """``correspondence``: the matched-depth term (``regularizers/correspondence.py``), added
+    to the photometric loss: at each pixel where a training photo saw a matched, triangulated
+    point, the rendered depth must be that point's depth, so matched pixels of two photos land
+    on each other through the rendered geometry."""
+
+    weight: float = 0.0
+    """Weight of the term; 0 = off (the part is not built)."""
+    start: int = 0
+    """The term applies for iterations > this ..."""
+    until: int | None = None
+    """... and < this (None: to the end)."""
+    tolerance: float = 0.01
+    """Relative depth error below which a pixel costs nothing (the triangulation's own
+    uncertainty: 2 px of reprojection error at a few degrees of angle is about 1 %)."""
+    min_alpha: float = 0.5
+    """Pixels whose rendered opacity is below this are skipped (no surface to move yet)."""
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the term is on."""
+        return self.weight > 0
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.weight) and self.weight >= 0.0):
+            raise ConfigError(f"correspondence.weight must be >= 0, got {self.weight}")
+        if not (math.isfinite(self.tolerance) and self.tolerance >= 0.0):
+            raise ConfigError(f"correspondence.tolerance must be >= 0, got {self.tolerance}")
+        if not 0.0 <= self.min_alpha < 1.0:
+            raise ConfigError(f"correspondence.min_alpha must be in [0, 1), got {self.min_alpha}")
 
 
 @dataclass(frozen=True)

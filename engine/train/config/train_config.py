@@ -17,12 +17,14 @@ from sparsesplat.engine.model.raster import RasterConfig
 from sparsesplat.engine.train.config.sections import (
     ColorConfig,
     ConsistencyConfig,
+    CorrespondenceConfig,
     DensifyConfig,
     DepthConfig,
     DropoutConfig,
     DtuConfig,
     GuardConfig,
     InitConfig,
+    MatchesConfig,
     NearPruneConfig,
     OptimConfig,
     PhotometricConfig,
@@ -92,6 +94,11 @@ class TrainConfig:
     """The warp-consistency term."""
     near_prune: NearPruneConfig = field(default_factory=NearPruneConfig)
     """Near-plane pruning."""
+    matches: MatchesConfig = field(default_factory=MatchesConfig)
+    """The learned matches between the training photos (used by ``init.add_matched`` and
+    ``correspondence``)."""
+    correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
+    """The matched-depth term."""
     raster: RasterConfig = field(default_factory=RasterConfig)
     """The rasterizer."""
     extra: dict[str, Any] = field(default_factory=dict)
@@ -130,6 +137,11 @@ class TrainConfig:
     def uses_depth(self) -> bool:
         """Whether any depth pass runs (a prior is needed)."""
         return self.depth.used
+
+    @property
+    def uses_matches(self) -> bool:
+        """Whether the run matches its training photos (the init or a term uses them)."""
+        return self.init.add_matched or self.correspondence.enabled
 
     def with_iterations(self, iterations: int) -> TrainConfig:
         """A copy that trains ``iterations`` iterations on the same schedule, compressed.
@@ -181,6 +193,8 @@ SCHEDULE_FIELDS = (
     "densify.opacity_reset_interval",
     "consistency.start",
     "near_prune.start",
+    "correspondence.start",
+    "correspondence.until",
 )
 """Fields counted in iterations, scaled by :meth:`TrainConfig.with_iterations` (with
 ``densify.clean_iterations``)."""

@@ -7,6 +7,8 @@ estimation; ``engine/sfm/points.py``). The last two fall back to ``random`` and 
 inward: the plane sweep behind ``dense`` is confident on most pixels of a forward-facing
 capture (overlapping frusta, small rotation) and on few, clustered ones of an orbit, where
 the back-projected cloud lost to the random box (docs/experiments/2026-11-25-dense-init-llff.md).
+``init.add_matched`` appends the run's matched points (``matched_points.py``) to whichever
+start was made.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.sfm.points import sparse_initial_points
 from sparsesplat.engine.train.config import InitConfig
 from sparsesplat.engine.train.init.dense_init import dense_points_from_priors, init_priors
+from sparsesplat.engine.train.init.matched_points import RunMatches
 from sparsesplat.engine.train.init.random_init import initial_point_count
 
 log = logging.getLogger(__name__)
@@ -38,10 +41,34 @@ def initial_points(
     depth: list[Any] | None,
     prior_cache: Path | None,
     generator: torch.Generator,
+    matched: RunMatches | None = None,
 ) -> tuple[Tensor, Tensor | None, str | None]:
     """(points (N, 3), colours (N, 3) or None, a note on how they were made or None for the
     plain random box). ``depth``: metric priors for ``dense`` (None: a plane sweep is computed,
-    cached under ``prior_cache``)."""
+    cached under ``prior_cache``). ``matched``: the run's matched points, appended when
+    ``cfg.add_matched`` (rows without a colour of their own, from the random box, get grey)."""
+    points, colours, note = _start(cfg, scene, box, cameras, depth, prior_cache, generator)
+    if not cfg.add_matched or matched is None or matched.empty:
+        return points, colours, note
+    extra = torch.from_numpy(matched.points).to(points)
+    extra_colours = torch.from_numpy(matched.colours).to(points)
+    if colours is None:
+        colours = torch.full_like(points, 0.5)
+    added = f"{len(extra)} matched points"
+    note = f"{note or 'random'}; + {added}"
+    return torch.cat([points, extra]), torch.cat([colours, extra_colours]), note
+
+
+def _start(
+    cfg: InitConfig,
+    scene: Scene,
+    box: tuple[Tensor, Tensor],
+    cameras: list[Camera],
+    depth: list[Any] | None,
+    prior_cache: Path | None,
+    generator: torch.Generator,
+) -> tuple[Tensor, Tensor | None, str | None]:
+    """The start ``cfg.method`` makes, before any matched points (as :func:`initial_points`)."""
     lo, hi = box
     if cfg.points is not None:
         n = cfg.points

@@ -75,6 +75,7 @@ from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.init.initial_points import initial_points
+from sparsesplat.engine.train.init.matched_points import RunMatches, run_matches
 from sparsesplat.engine.train.init.model import initial_model
 from sparsesplat.engine.train.init.random_init import frusta_box
 from sparsesplat.engine.train.loop.densify import DensifyStrategy, ModelCollapsed
@@ -92,6 +93,7 @@ from sparsesplat.engine.train.loop.result import TrainResult, limit_warning
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
 from sparsesplat.engine.train.loop.state import restore_trainer, trainer_state
 from sparsesplat.engine.train.regularizers.consistency import WarpConsistency
+from sparsesplat.engine.train.regularizers.correspondence import CorrespondenceTerm
 from sparsesplat.engine.train.regularizers.depth_gate import agreeing_views
 from sparsesplat.engine.train.regularizers.depth_regularizer import DepthRegularizer, hard_downscale
 from sparsesplat.engine.train.regularizers.dropout import PhotometricDropout, scatter_output
@@ -159,6 +161,20 @@ class Trainer:
                 )
         self.init_note: str | None = None
         """How the initial Gaussians were made when ``init='dense'`` (also in the metrics)."""
+        self.matches: RunMatches | None = None
+        """The training photos' matched, triangulated points; None unless the init or the
+        correspondence term uses them (``TrainConfig.uses_matches``)."""
+        if self.config.uses_matches:
+            cache = self.out_dir / "priors" if self.out_dir is not None else None
+            prev_threads = torch.get_num_threads()
+            if self.config.threads:  # the run's thread count, as for its iterations
+                torch.set_num_threads(self.config.threads)
+            try:
+                self.matches = run_matches(
+                    self.config.matches, [v.image for v in self.scene.train], self.cameras, cache
+                )
+            finally:
+                torch.set_num_threads(prev_threads)
         self._setup_model(init_depth if init_depth is not None else priors)
         cfg, clock = self.config, self.clock
         self.densify: DensifyStrategy | None = None
@@ -183,6 +199,13 @@ class Trainer:
             self.consistency = WarpConsistency(
                 cfg.consistency, self.cameras, self.images, self._raster, clock
             )
+        self.correspondence: CorrespondenceTerm | None = None
+        """The matched-depth term; None unless ``correspondence.weight > 0`` and the run has
+        matched points."""
+        if cfg.correspondence.enabled and self.matches is not None and not self.matches.empty:
+            self.correspondence = CorrespondenceTerm(
+                cfg.correspondence, self.matches, self.cameras, clock
+            )
         self.near_prune: NearPrune | None = None
         """Near-plane pruning; None unless ``near_prune.enabled``."""
         if cfg.near_prune.enabled:
@@ -195,7 +218,9 @@ class Trainer:
             self.recorder.eval_keep = self.near_prune.eval_keep
         self.timer = StageTimer(self.config.record.profile)
         self.iteration = 0
-        self.elapsed_s = 0.0
+        # Matching is part of training: the run's clock (its time limit, the error-against-time
+        # record) starts with the seconds it took.
+        self.elapsed_s = self.matches.seconds if self.matches is not None else 0.0
         self.view_stack: list[int] = []
         self.stop_requested = False
         """Set from another thread (a job's cancel or a time budget): the run stops after the
@@ -260,7 +285,14 @@ class Trainer:
         """Hook ``init_points``: points (N, 3) and, from the dense/sparse inits, colours."""
         cache = self.out_dir / "priors" if self.out_dir is not None else None
         points, colours, note = initial_points(
-            self.config.init, self.scene, self.box, self.cameras, depth, cache, self.generator
+            self.config.init,
+            self.scene,
+            self.box,
+            self.cameras,
+            depth,
+            cache,
+            self.generator,
+            self.matches,
         )
         self.init_note = note if note is not None else self.init_note
         return points, colours
@@ -426,6 +458,10 @@ class Trainer:
             extra = self.consistency.extra_loss(it, g, out, view)
             loss = loss if extra is None else loss + extra
             timer.tick("consistency")
+        if self.correspondence is not None:
+            extra = self.correspondence.extra_loss(it, out, view)
+            loss = loss if extra is None else loss + extra
+            timer.tick("correspondence")
         if fused_soft and self.depth is not None and out.opacity_depth is not None:
             # DNGaussian's soft-depth term on this render: its gradient reaches the opacities
             # only (the rasterizer routes it), as the reference's detached pass would.
@@ -548,6 +584,8 @@ class Trainer:
                 metrics.setdefault("warnings", []).append(
                     limit_warning(limit, self.iteration, self.config.iterations, self.elapsed_s)
                 )
+        if self.matches is not None:
+            metrics["matches"] = self.matches.summary
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
         if self.depth_agreement is not None:

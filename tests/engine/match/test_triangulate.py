@@ -70,6 +70,23 @@ def test_exact_observations_give_the_points_within_the_derived_bound(seed: int, 
     np.testing.assert_allclose(start.colours, np.broadcast_to([0.2, 0.4, 0.6], (300, 3)), atol=1e-6)
 
 
+def test_observations_name_each_kept_point_where_each_photo_saw_it(seed: int) -> None:
+    """Every kept point is listed once per photo that sees it, at its projection there (the
+    observations are exact, so within the float32 storage of the coordinates)."""
+    rng = np.random.default_rng(seed)
+    cams = arc_cameras(3, 12.0)
+    truth = cube_points(rng, 150)
+    start = matched_start(exact_matches(truth, cams, rng), cams, flat_photos(3, (1, 1, 1)))
+    obs = start.observations
+    assert len(obs.point) == int(start.views.sum())
+    np.testing.assert_array_equal(np.bincount(obs.point, minlength=len(start.points)), start.views)
+    for v, cam in enumerate(cams):
+        idx, xy = obs.in_view(v)
+        uv, z = project(start.points[idx].astype(np.float64), cam)
+        assert (z > 0).all()
+        assert float(np.abs(uv - xy).max()) < 1e-3  # pixels, as the reprojection error above
+
+
 def test_scales_are_the_rms_distance_to_the_three_nearest_points(seed: int) -> None:
     rng = np.random.default_rng(seed)
     cams = arc_cameras(2, 20.0)

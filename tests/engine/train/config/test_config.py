@@ -19,7 +19,16 @@ from sparsesplat.engine.train.config.overrides import (
 )
 from sparsesplat.engine.train.config.presets import PRESETS, preset
 
-_NEW_FIELDS = {"time_budget_s", "time_limit_s", "consistency.partner_depth"}
+_NEW_FIELDS = {
+    "time_budget_s",
+    "time_limit_s",
+    "consistency.partner_depth",
+    "init.add_matched",
+    *(f"matches.{name}" for name in ("method", "keypoints", "min_side", "max_error_px")),
+    "matches.min_angle_deg",
+    *(f"correspondence.{name}" for name in ("weight", "start", "until", "tolerance")),
+    "correspondence.min_alpha",
+}
 """Fields that did not exist in the flat versions (no flat name)."""
 
 
@@ -46,7 +55,15 @@ def test_every_field_has_one_flat_name_and_every_flat_name_a_field() -> None:
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_a_flat_stored_config_reads_back_as_the_nested_one(name: str) -> None:
     config = preset(name, iterations=333, seed=4)
-    assert config_from_dict(legacy_flat_dict(config)) == config
+    # An old checkpoint has none of the later fields: they read back as their defaults.
+    defaults = TrainConfig()
+    later = {s.split(".")[0] for s in _NEW_FIELDS if s.startswith(("matches.", "correspondence."))}
+    old = dataclasses.replace(
+        config,
+        init=dataclasses.replace(config.init, add_matched=False),
+        **{section: getattr(defaults, section) for section in later},
+    )
+    assert config_from_dict(legacy_flat_dict(config)) == old
     assert config_from_dict(config.to_dict()) == config
 
 
@@ -125,7 +142,8 @@ def test_with_iterations_scales_exactly_the_schedule_fields() -> None:
                 "hard_depth_start", "soft_depth_start", "depth_until", "depth_smooth_start",
                 "sh_degree_interval", "opacity_reset_interval", "consistency_start",
                 "near_prune_start")  # fmt: skip
-    assert set(SCHEDULE_FIELDS) == {FLAT_NAMES[f] for f in old_list}
+    new = {"correspondence.start", "correspondence.until"}  # fields of later versions
+    assert set(SCHEDULE_FIELDS) == {FLAT_NAMES[f] for f in old_list} | new
     assert changed <= {*SCHEDULE_FIELDS, "densify.clean_iterations", "iterations"}
     assert after["densify.opacity_reset_interval"] == 750
     assert after["depth.hard_start"] == 1  # a start of 0 becomes 1 when compressed
