@@ -14,8 +14,8 @@ import torch
 from PIL import Image
 
 from sparsesplat.engine.datasets import load_scene
-from sparsesplat.engine.datasets.common import choose_preset
 from sparsesplat.engine.train import Trainer
+from sparsesplat.engine.train.config.presets import choose_preset
 from tests.engine.scenes.synthetic import smoke_preset
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -16,9 +16,10 @@ from PIL import Image
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets import load_scene
-from sparsesplat.engine.datasets.common import choose_preset, with_background
+from sparsesplat.engine.datasets.common import with_background
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.synthetic import look_at, make_scene
+from sparsesplat.engine.train.config.presets import choose_preset
 from tests.cli.scenes import shrink_images, write_object_scene
 from tests.engine.scenes.synthetic import write_folder_scene
 
