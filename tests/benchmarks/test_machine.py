@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from sparsesplat.engine.bench import common
-from sparsesplat.engine.bench.common import RESULTS_DIR_ENV, cpu_identity, write_results
+from benchmarks import common
+from benchmarks.common import RESULTS_DIR_ENV, cpu_identity, write_results
 
 _SCRIPT = """
 import json
 import torch
-from sparsesplat.engine.bench.common import machine_info
+from benchmarks.common import machine_info
 before = machine_info()["kernels"]
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.raster import rasterize

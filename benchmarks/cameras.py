@@ -6,7 +6,7 @@ a guess, and with the dataset's intrinsics given. Against the dataset's poses af
 similarity alignment: registered views, median and largest rotation error (degrees), mean
 reprojection error, points, seconds, and the message when the estimation refused.
 
-    python -m sparsesplat.engine.bench.cameras [--data ROOT] [--scenes flower horns ...]
+    python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...]
 
 ``--train SCENE --iterations N`` instead trains the scene twice with the same preset and
 seed: from the dataset's cameras, and from the estimated ones with the held-out cameras
@@ -24,13 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from sparsesplat.engine.bench.common import (
+from benchmarks.common import (
     SHARED_SCENES,
     format_table,
     machine_info,
     results_dir,
 )
-from sparsesplat.engine.bench.quality import default_data_root
+from benchmarks.quality import default_data_root
 
 SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""

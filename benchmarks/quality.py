@@ -31,7 +31,7 @@ and ``prior:<preset default>``) reuses that run's row instead of training twice.
 A full sweep takes hours on 2 cores, so the results file is rewritten after every (scene,
 variant) and a rerun skips entries already in it with the same views and iterations (``--fresh``
 retrains them). Run it in the background, e.g.
-``nohup python -m sparsesplat.engine.bench.quality --iterations 1000 > quality.log 2>&1 &``.
+``nohup python -m benchmarks.quality --iterations 1000 > quality.log 2>&1 &``.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
+from benchmarks.common import format_table, machine_info, results_dir
 
 COLUMNS = [
     "scene",
@@ -82,7 +82,7 @@ def default_data_root() -> Path:
     env = os.environ.get("SPARSESPLAT_SHARED_DATA")
     if env:
         return Path(env)
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[1]
     return repo.parent / "shared" / "data"
 
 
@@ -91,7 +91,7 @@ def use_shared_models() -> None:
     that folder exists, so LPIPS (and AVGE) are measured without a fetch-weights step."""
     from sparsesplat.engine.weights import MODELS_DIR_ENV
 
-    shared = Path(__file__).resolve().parents[2].parent / "shared" / "models"
+    shared = Path(__file__).resolve().parents[1].parent / "shared" / "models"
     if not os.environ.get(MODELS_DIR_ENV) and shared.is_dir():
         os.environ[MODELS_DIR_ENV] = str(shared)
 
@@ -484,7 +484,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m sparsesplat.engine.bench.quality``."""
+    """Entry point of ``python -m benchmarks.quality``."""
     parser = argparse.ArgumentParser(prog="bench-quality", description=__doc__.split("\n")[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))

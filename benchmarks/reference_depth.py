@@ -34,13 +34,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sparsesplat.engine.bench.common import (
+from benchmarks.common import (
     format_table,
     machine_info,
     results_dir,
     write_results,
 )
-from sparsesplat.engine.bench.quality import (
+from benchmarks.quality import (
     PRESET_OF_FORMAT,
     default_data_root,
     select_scenes,
@@ -226,7 +226,7 @@ def score_runs(run_dirs: Sequence[Path], reference_dir: Path) -> list[dict[str, 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m sparsesplat.engine.bench.reference_depth``."""
+    """Entry point of ``python -m benchmarks.reference_depth``."""
     parser = argparse.ArgumentParser(
         prog="bench-reference-depth", description=__doc__.split("\n")[0]
     )

@@ -113,7 +113,7 @@ def results_dir() -> Path:
     """bench-results/ at the repository root (or $SPARSESPLAT_BENCH_DIR, or ./bench-results)."""
     if os.environ.get(RESULTS_DIR_ENV):
         return Path(os.environ[RESULTS_DIR_ENV])
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[1]
     if (repo / "pyproject.toml").is_file():
         return repo / "bench-results"
     return Path.cwd() / "bench-results"

@@ -23,8 +23,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import write_results
 from sparsesplat.api.names import ARTIFACT_FILES
-from sparsesplat.engine.bench.common import write_results
 
 PSNR_KEY = "psnr"
 
@@ -97,7 +97,7 @@ def per_view_rows(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m sparsesplat.engine.bench.per_view``."""
+    """Entry point of ``python -m benchmarks.per_view``."""
     parser = argparse.ArgumentParser(prog="bench-per-view", description=__doc__.split("\n")[0])
     parser.add_argument("results", nargs="+", type=Path, help="bench-quality result files")
     parser.add_argument("--scenes", required=True, help="comma list of scene names")
@@ -107,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import torch
 
-    from sparsesplat.engine.bench.quality import load_rows
+    from benchmarks.quality import load_rows
     from sparsesplat.engine.datasets import load_scene
 
     if args.threads:

@@ -7,7 +7,7 @@ from typing import Any
 
 import torch
 
-from sparsesplat.engine.bench.iteration import measure_trained
+from benchmarks.iteration import measure_trained
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.model.checkpoint import load_checkpoint
 from sparsesplat.engine.train import Trainer, preset

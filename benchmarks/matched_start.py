@@ -14,7 +14,7 @@ reprojection error and triangulation angle, and against the dataset:
   silhouette, widened by :data:`SILHOUETTE_SLACK_PX` (the reprojection error allowed), in
   every held-out view that frames it (alpha >= 0.5, DTU's masks).
 
-    python -m sparsesplat.engine.bench.matched_start [--scenes ...] [--methods ...]
+    python -m benchmarks.matched_start [--scenes ...] [--methods ...]
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from sparsesplat.engine.bench.common import format_table, machine_info, results_dir
-from sparsesplat.engine.bench.matchers import (
+from benchmarks.common import format_table, machine_info, results_dir
+from benchmarks.matchers import (
     DEFAULT_SCENES,
     SCENES,
     load_views,
@@ -36,7 +36,7 @@ from sparsesplat.engine.bench.matchers import (
     report,
     sift_matches,
 )
-from sparsesplat.engine.bench.quality import default_data_root
+from benchmarks.quality import default_data_root
 
 COLUMNS = ["scene", "method", "tracks", "conflicts", "behind", "error", "angle", "kept",
            "err_med_px", "err_p90_px", "angle_med_deg", "views3", "depth_rel_med",

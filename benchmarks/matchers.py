@@ -12,7 +12,7 @@ Background: images with alpha are matched inside alpha >= 0.5 (the Blender proto
 matcher drops keypoints on flat patches (``MatchSettings.min_texture``); ``--object-masks``
 restricts DTU to its object masks.
 
-    python -m sparsesplat.engine.bench.matchers [--data ROOT] [--scenes flower ...]
+    python -m benchmarks.matchers [--data ROOT] [--scenes flower ...]
         [--methods xfeat-lighterglue ... sift] [--threads 1 2]
 """
 
@@ -28,13 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from sparsesplat.engine.bench.common import (
+from benchmarks.common import (
     SHARED_SCENES,
     format_table,
     machine_info,
     results_dir,
 )
-from sparsesplat.engine.bench.quality import default_data_root
+from benchmarks.quality import default_data_root
 
 SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""

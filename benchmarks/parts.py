@@ -18,7 +18,7 @@ import statistics
 import time
 from typing import Any
 
-from sparsesplat.engine.bench.common import machine_info, write_results
+from benchmarks.common import machine_info, write_results
 
 DEFAULT_VARIANTS = (
     "base",
@@ -33,7 +33,7 @@ default, included); every other variant switches one part on."""
 
 
 def _overrides(variant: str) -> dict[str, Any]:
-    from sparsesplat.engine.bench.quality import variant_overrides
+    from benchmarks.quality import variant_overrides
 
     return {} if variant == "base" else variant_overrides(variant)
 

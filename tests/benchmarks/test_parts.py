@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from sparsesplat.engine.bench.parts import DEFAULT_VARIANTS, build, time_round
+from benchmarks.parts import DEFAULT_VARIANTS, build, time_round
 
 PART_ATTRIBUTES = {
     "set:dropout=true": "dropout",

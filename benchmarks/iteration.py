@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sparsesplat.engine.bench.common import machine_info, write_results
+from benchmarks.common import machine_info, write_results
 
 if TYPE_CHECKING:
     from sparsesplat.engine.train import Trainer

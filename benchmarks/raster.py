@@ -111,11 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.case:  # child: one N, JSON on the last stdout line
         print(json.dumps(run_case(args.n[0], args.threads, args.repeats)))
         return 0
-    from sparsesplat.engine.bench.common import write_results
+    from benchmarks.common import write_results
 
     rows = []
     for n in args.n:
-        cmd = [sys.executable, "-m", "sparsesplat.engine.bench.raster", "--case", "--n", str(n)]
+        cmd = [sys.executable, "-m", "benchmarks.raster", "--case", "--n", str(n)]
         cmd += ["--threads", str(args.threads), "--repeats", str(args.repeats)]
         done = subprocess.run(cmd, check=True, capture_output=True, text=True)
         rows.append(json.loads(done.stdout.strip().splitlines()[-1]))

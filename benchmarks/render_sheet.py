@@ -31,7 +31,7 @@ TILE_HEIGHT = 189
 """Each tile is scaled to this height (a 504x378 view at half size)."""
 MAX_VIEWS = 3
 """Held-out views per sheet, evenly spaced over the held-out list."""
-DOCS_DIR = Path(__file__).resolve().parents[2] / "docs" / "render-sheets"
+DOCS_DIR = Path(__file__).resolve().parents[1] / "docs" / "render-sheets"
 """Where the sheets go by default."""
 
 

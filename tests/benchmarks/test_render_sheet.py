@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from sparsesplat.engine.bench.render_sheet import MAX_VIEWS, TILE_HEIGHT, render_sheet
+from benchmarks.render_sheet import MAX_VIEWS, TILE_HEIGHT, render_sheet
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.train import Trainer, preset
 from tests.cli.scenes import write_object_scene
@@ -47,7 +47,7 @@ def test_rows_score_each_view_as_the_runs_own_evaluation(tmp_path: Path) -> None
 
     import torch
 
-    from sparsesplat.engine.bench.render_sheet import sheet_rows
+    from benchmarks.render_sheet import sheet_rows
     from sparsesplat.engine.metrics.evaluate import PSNR_CEILING, Evaluator
     from sparsesplat.engine.model import load_model
 

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 import sparsesplat.engine.datasets as datasets
-from sparsesplat.engine.bench import quality
+from benchmarks import quality
 from sparsesplat.engine.synthetic import make_cameras
 from sparsesplat.engine.train import preset
 
@@ -146,7 +146,7 @@ def test_per_view_angle_is_the_smallest_optical_axis_angle_to_a_training_camera(
 
     import torch
 
-    from sparsesplat.engine.bench import per_view
+    from benchmarks import per_view
     from sparsesplat.engine.camera import Camera
 
     def turned(degrees: float) -> Camera:  # a camera yawed about the world y axis
@@ -171,7 +171,7 @@ def test_per_view_angle_is_the_smallest_optical_axis_angle_to_a_training_camera(
 def test_per_view_rows_average_each_view_over_seeds(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from sparsesplat.engine.bench import per_view
+    from benchmarks import per_view
 
     scene = SimpleNamespace(name="s", train=[], test=[])
     monkeypatch.setattr(per_view, "nearest_training_angles", lambda s: {"v1": 10.0, "v2": 20.0})

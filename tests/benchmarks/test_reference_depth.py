@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sparsesplat.engine.bench.reference_depth import COVERED_ALPHA, reference_depths
+from benchmarks.reference_depth import COVERED_ALPHA, reference_depths
 from sparsesplat.engine.errors import PriorError
 from sparsesplat.engine.priors import compute_priors
 from sparsesplat.engine.priors.user import attach_depth_folder
@@ -60,7 +60,7 @@ def test_reference_depth_is_alpha_normalised_and_filled_far() -> None:
 
 @pytest.mark.shared_data
 def test_all_view_scene_trains_on_every_protocol_view(shared_data: Path) -> None:
-    from sparsesplat.engine.bench.reference_depth import all_view_scene
+    from benchmarks.reference_depth import all_view_scene
 
     sparse, dense = all_view_scene(shared_data / "dtu" / "dtu_scan24")
     assert len(sparse.train) == 3 and len(dense.train) == 9 + 25
@@ -78,7 +78,7 @@ def _fake_model(depth: torch.Tensor, alpha: torch.Tensor) -> SimpleNamespace:
 def test_held_out_geometry_against_the_reference(seed: int) -> None:
     """A model 10 % too far everywhere has relative error 0.1 and rank correlation 1; pixels
     one model leaves empty or outside the mask are not scored; covered counts the share."""
-    from sparsesplat.engine.bench.reference_depth import held_out_geometry
+    from benchmarks.reference_depth import held_out_geometry
 
     gen = torch.Generator().manual_seed(seed)
     depth = 1.0 + 4.0 * torch.rand(20, 30, generator=gen, dtype=torch.float64)

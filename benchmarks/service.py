@@ -280,7 +280,7 @@ def _submit_and_time(base: str, upload: Path) -> tuple[str, dict[str, float]]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; ``--renders N`` sequential renders per phase."""
-    from sparsesplat.engine.bench.common import write_results
+    from benchmarks.common import write_results
 
     parser = argparse.ArgumentParser(prog="bench-service")
     parser.add_argument("--gaussians", type=int, default=50_000)
