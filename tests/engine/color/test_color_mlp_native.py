@@ -163,7 +163,7 @@ _ISA_SCRIPT = """
 import json, sys, torch
 from sparsesplat.engine.color.build import load_extension
 from sparsesplat.engine.color.native import NativeColorMLP
-from tests.engine.train.test_color_mlp_native import _inputs, _masked_upstream, _run
+from tests.engine.color.test_color_mlp_native import _inputs, _masked_upstream, _run
 seed = int(sys.argv[1])
 inputs = _inputs(1500, 32, seed)
 got = _run(NativeColorMLP.apply, inputs, _masked_upstream(inputs, seed), torch.float32)

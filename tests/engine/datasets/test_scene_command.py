@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sparsesplat.engine.commands import scene as scene_cmd
-from tests.engine.scenes.synthetic import write_folder_scene
+from tests.engine.datasets.synthetic import write_folder_scene
 
 
 def run_cli(argv: list[str]) -> int:

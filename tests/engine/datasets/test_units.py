@@ -10,7 +10,7 @@ import pytest
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.train import Trainer
 from tests.cli.scenes import write_object_scene
-from tests.engine.scenes.synthetic import smoke_preset
+from tests.engine.datasets.synthetic import smoke_preset
 
 
 def _config():  # type: ignore[no-untyped-def]

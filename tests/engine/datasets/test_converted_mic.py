@@ -16,7 +16,7 @@ from PIL import Image
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config.presets import choose_preset
-from tests.engine.scenes.synthetic import smoke_preset
+from tests.engine.datasets.synthetic import smoke_preset
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 SIZE = 100

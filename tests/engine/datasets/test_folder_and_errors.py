@@ -11,7 +11,7 @@ import torch
 
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.errors import SceneError
-from tests.engine.scenes.synthetic import write_folder_scene
+from tests.engine.datasets.synthetic import write_folder_scene
 
 
 def _edit(root: Path, fn) -> None:  # type: ignore[no-untyped-def]

@@ -21,7 +21,7 @@ from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train.config.presets import choose_preset
 from tests.cli.scenes import shrink_images, write_object_scene
-from tests.engine.scenes.synthetic import write_folder_scene
+from tests.engine.datasets.synthetic import write_folder_scene
 
 Meta = dict[str, Any]
 

@@ -16,9 +16,8 @@ import torch
 
 from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.hashgrid import HashGrid
+from tests.engine.color.colour_reference import field_reference, grid_reference
 from tests.engine.numerics import assert_float32_close, compare_float32, summed_terms
-
-from .colour_reference import field_reference, grid_reference
 
 
 def _grid(seed: int, **kw: object) -> HashGrid:
