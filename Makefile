@@ -31,7 +31,7 @@ lint: venv
 	$(PY) -m ruff format --check .
 
 typecheck: venv
-	$(PY) -m mypy -p sparsesplat.api -p sparsesplat.client -p sparsesplat.server -p sparsesplat.worker -p sparsesplat.engine
+	$(PY) -m mypy -p sparsesplat.api -p sparsesplat.client -p sparsesplat.server -p sparsesplat.worker -p sparsesplat.engine -p benchmarks
 
 dockerlint: venv
 	$(VENV)/bin/hadolint docker/Dockerfile.cpu docker/Dockerfile.cuda
@@ -59,37 +59,38 @@ test-arm64: venv
 check-arm64-build: venv
 	$(PY) -m sparsesplat.engine.arm64_build
 
+# The benchmarks live in benchmarks/ at the repository root: run from here, never installed.
 bench-raster: venv
-	$(PY) -m sparsesplat.engine.bench.raster $(BENCH_ARGS)
+	$(PY) -m benchmarks.raster $(BENCH_ARGS)
 
 bench-quality: venv
-	$(PY) -m sparsesplat.engine.bench.quality $(BENCH_ARGS)
+	$(PY) -m benchmarks.quality $(BENCH_ARGS)
 
 bench-iteration: venv
-	$(PY) -m sparsesplat.engine.bench.iteration $(BENCH_ARGS)
+	$(PY) -m benchmarks.iteration $(BENCH_ARGS)
 
 bench-parts: venv
-	$(PY) -m sparsesplat.engine.bench.parts $(BENCH_ARGS)
+	$(PY) -m benchmarks.parts $(BENCH_ARGS)
 
 bench-reference-depth: venv
-	$(PY) -m sparsesplat.engine.bench.reference_depth $(BENCH_ARGS)
+	$(PY) -m benchmarks.reference_depth $(BENCH_ARGS)
 
 bench-per-view: venv
-	$(PY) -m sparsesplat.engine.bench.per_view $(BENCH_ARGS)
+	$(PY) -m benchmarks.per_view $(BENCH_ARGS)
 
 bench-render-sheet: venv
-	$(PY) -m sparsesplat.engine.bench.render_sheet $(BENCH_ARGS)
+	$(PY) -m benchmarks.render_sheet $(BENCH_ARGS)
 
 bench-cameras: venv
-	$(PY) -m sparsesplat.engine.bench.cameras $(BENCH_ARGS)
+	$(PY) -m benchmarks.cameras $(BENCH_ARGS)
 
 # The learned matchers against the dataset's epipolar geometry, then the matched start.
 bench-matchers: venv
-	$(PY) -m sparsesplat.engine.bench.matchers $(BENCH_ARGS)
-	$(PY) -m sparsesplat.engine.bench.matched_start
+	$(PY) -m benchmarks.matchers $(BENCH_ARGS)
+	$(PY) -m benchmarks.matched_start
 
 bench-service: venv
-	$(PY) -m sparsesplat.worker.bench_service $(BENCH_ARGS)
+	$(PY) -m benchmarks.service $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) .cache .mypy_cache .ruff_cache .pytest_cache build dist *.egg-info

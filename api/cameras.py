@@ -474,9 +474,20 @@ MIN_PHOTOS = 2
 better)."""
 
 
+_INTRINSICS_ORDER = ("fx", "fy", "cx", "cy", "width", "height")
+"""The order of :class:`Intrinsics`' positional arguments."""
+
+
 class Intrinsics(StrictModel):
-    """Pinhole intrinsics shared by every photo of an upload without poses (pixels, pixel
-    centres at +0.5): the cameras are estimated from the photos with these held fixed."""
+    """Pinhole intrinsics in pixels (pixel centres at +0.5), and optionally the image size.
+
+    One class for both uses: the lens shared by every photo of an upload without poses (the
+    cameras are estimated with it held fixed; a size, when given, must be the photos'), and
+    the SDK's lens for building cameras (``client.cameras``: ``look_at``, ``orbit``, ...),
+    which needs the size too. Positional arguments work: ``Intrinsics(fx, fy, cx, cy, w, h)``.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     REQUIRED_HINTS: ClassVar[dict[str, str]] = {
         "fx": "focal length along x in pixels",
@@ -493,3 +504,66 @@ class Intrinsics(StrictModel):
     """Principal point x in pixels."""
     cy: float = Field(allow_inf_nan=False)
     """Principal point y in pixels."""
+    width: int | None = Field(default=None, gt=0)
+    """Image width in pixels (None: not given)."""
+    height: int | None = Field(default=None, gt=0)
+    """Image height in pixels (None: not given)."""
+
+    def __init__(self, *args: float | None, **fields: Any) -> None:
+        """The fields by name, or the first ones in order: ``Intrinsics(fx, fy, cx, cy, w, h)``.
+        (Validation calls this too, with the fields by name.)"""
+        if len(args) > len(_INTRINSICS_ORDER):
+            raise TypeError(f"Intrinsics takes at most {len(_INTRINSICS_ORDER)} values in order")
+        for name, value in zip(_INTRINSICS_ORDER, args, strict=False):
+            if name in fields:
+                raise TypeError(f"Intrinsics got {name!r} both in order and by name")
+            fields[name] = value
+        # BaseModel's own __init__ (it validates), past the field-typed one type checkers
+        # synthesize for StrictModel.
+        BaseModel.__init__(self, **fields)
+
+    @classmethod
+    def from_fov(
+        cls, width: int, height: int, fov_x_deg: float, fov_y_deg: float | None = None
+    ) -> Intrinsics:
+        """Centred intrinsics from a horizontal field of view (and a vertical one, else square
+        pixels)."""
+        fx = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
+        fy = fx if fov_y_deg is None else 0.5 * height / math.tan(math.radians(fov_y_deg) / 2)
+        return cls(fx, fy, width / 2, height / 2, int(width), int(height))
+
+    @classmethod
+    def of(cls, camera: PinholeCamera) -> Intrinsics:
+        """The intrinsics (and size) of ``camera``."""
+        return cls(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+
+    def scaled(self, factor: float) -> Intrinsics:
+        """The same lens for an image resized by ``factor`` (0.5: half the size)."""
+        return Intrinsics(
+            self.fx * factor,
+            self.fy * factor,
+            self.cx * factor,
+            self.cy * factor,
+            None if self.width is None else max(1, round(self.width * factor)),
+            None if self.height is None else max(1, round(self.height * factor)),
+        )
+
+    @property
+    def size(self) -> tuple[int, int] | None:
+        """``(width, height)``, or None when either is not given."""
+        if self.width is None or self.height is None:
+            return None
+        return self.width, self.height
+
+    def fields(self) -> dict[str, Any]:
+        """As PinholeCamera keyword arguments; ValueError without the image size."""
+        if self.size is None:
+            raise ValueError("these intrinsics have no image size: give width and height")
+        return {
+            "fx": float(self.fx),
+            "fy": float(self.fy),
+            "cx": float(self.cx),
+            "cy": float(self.cy),
+            "width": self.size[0],
+            "height": self.size[1],
+        }

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from sparsesplat.api.cameras import (
     AxisConvention,
+    Intrinsics,
     PinholeCamera,
     PoseDirection,
     rigid_inverse,
@@ -46,59 +46,12 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics in pixels (pixel centres at +0.5) and the image size."""
-
-    fx: float
-    """Focal length along x."""
-    fy: float
-    """Focal length along y."""
-    cx: float
-    """Principal point x (the image centre is ``width / 2``)."""
-    cy: float
-    """Principal point y."""
-    width: int
-    """Image width."""
-    height: int
-    """Image height."""
-
-    @classmethod
-    def from_fov(
-        cls, width: int, height: int, fov_x_deg: float, fov_y_deg: float | None = None
-    ) -> Intrinsics:
-        """Centred intrinsics from a horizontal field of view (and a vertical one, else square
-        pixels)."""
-        fx = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
-        fy = fx if fov_y_deg is None else 0.5 * height / math.tan(math.radians(fov_y_deg) / 2)
-        return cls(fx, fy, width / 2, height / 2, int(width), int(height))
-
-    @classmethod
-    def of(cls, camera: PinholeCamera) -> Intrinsics:
-        """The intrinsics of ``camera``."""
-        return cls(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
-
-    def scaled(self, factor: float) -> Intrinsics:
-        """The same lens for an image resized by ``factor`` (0.5: half the size)."""
-        return Intrinsics(
-            self.fx * factor,
-            self.fy * factor,
-            self.cx * factor,
-            self.cy * factor,
-            max(1, round(self.width * factor)),
-            max(1, round(self.height * factor)),
-        )
-
-    def fields(self) -> dict[str, Any]:
-        """As PinholeCamera keyword arguments."""
-        return {
-            "fx": float(self.fx),
-            "fy": float(self.fy),
-            "cx": float(self.cx),
-            "cy": float(self.cy),
-            "width": int(self.width),
-            "height": int(self.height),
-        }
+def _lens(intrinsics: Intrinsics) -> dict[str, Any]:
+    """``intrinsics`` as PinholeCamera keyword arguments; InvalidInput without its size."""
+    try:
+        return intrinsics.fields()
+    except ValueError as exc:
+        raise InvalidInput(f"intrinsics: {exc}") from exc
 
 
 # ---------------------------------------------------------------- small linear algebra
@@ -175,7 +128,7 @@ def _camera(c2w_opencv: Matrix, intrinsics: Intrinsics) -> PinholeCamera:
         convention=AxisConvention.opencv,
         pose=PoseDirection.camera_to_world,
         matrix=c2w_opencv,
-        **intrinsics.fields(),
+        **_lens(intrinsics),
     )
 
 
@@ -216,7 +169,7 @@ def from_matrix(
         convention=AxisConvention(convention),
         pose=PoseDirection(pose),
         matrix=_matrix(matrix),
-        **intrinsics.fields(),
+        **_lens(intrinsics),
     )
 
 
@@ -489,4 +442,4 @@ def _rotation(q: Quaternion) -> list[list[float]]:
 
 def with_intrinsics(camera: PinholeCamera, intrinsics: Intrinsics) -> PinholeCamera:
     """``camera`` with another lens / image size (pose unchanged)."""
-    return camera.model_copy(update=intrinsics.fields())
+    return camera.model_copy(update=_lens(intrinsics))

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sparsesplat.api.cameras import rigid_inverse as rigid_inverse_lists
 from sparsesplat.api.scenes import dtu as dtu_format
 from sparsesplat.api.scenes import llff as llff_format
 from sparsesplat.api.scenes import transforms as transforms_format
@@ -58,11 +59,9 @@ def check_rotation(rotation: np.ndarray, source: str) -> None:
 
 
 def rigid_inverse(matrix: np.ndarray) -> np.ndarray:
-    """Inverse of a 4x4 rigid transform, computed as (R^T, -R^T t)."""
-    out = np.eye(4)
-    out[:3, :3] = matrix[:3, :3].T
-    out[:3, 3] = -matrix[:3, :3].T @ matrix[:3, 3]
-    return out
+    """Inverse of a 4x4 rigid transform (``api.cameras.rigid_inverse``, (R^T, -R^T t)), as a
+    float64 array."""
+    return np.array(rigid_inverse_lists(np.asarray(matrix, dtype=np.float64).tolist()))
 
 
 def _bottom_row_ok(matrix: np.ndarray, source: str) -> None:

@@ -24,8 +24,8 @@ from sparsesplat.api.cameras import MIN_PHOTOS, Intrinsics
 from sparsesplat.api.jobs import JobSpec
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import PHOTOS_FILE
-from sparsesplat.server.errors import ServiceError, invalid
-from sparsesplat.server.uploads import Upload, _files, _image_info, _text, pydantic_message
+from sparsesplat.server.errors import ServiceError, invalid, pydantic_message
+from sparsesplat.server.form_parts import Upload, form_files, form_text, image_info
 
 BLANK_STDDEV = 1.0
 """A photo whose grey levels vary less than this (standard deviation, 0-255) is blank."""
@@ -37,7 +37,7 @@ def parse_intrinsics(form: FormData) -> Intrinsics | None:
     if raw is None:
         return None
     try:
-        return Intrinsics.model_validate_json(_text(raw))
+        return Intrinsics.model_validate_json(form_text(raw))
     except ValidationError as exc:
         raise invalid("invalid_intrinsics", pydantic_message(exc, "intrinsics")) from exc
 
@@ -64,7 +64,7 @@ def validate_photos(form: FormData, settings: Settings, staging: Path, spec: Job
     if spec.depth_prior == "uploaded":
         raise invalid("missing_depth", "depth_prior 'uploaded' needs a cameras.json with depths")
     intrinsics = parse_intrinsics(form)
-    images = _files(form, "images")
+    images = form_files(form, "images")
     if len(images) < MIN_PHOTOS:
         raise invalid(
             "too_few_photos",
@@ -82,7 +82,7 @@ def validate_photos(form: FormData, settings: Settings, staging: Path, spec: Job
     (staging / "images").mkdir()
     stored, size = [], None
     for index, name in enumerate(names):
-        ext, width, height = _image_info(images[name], name, settings)
+        ext, width, height = image_info(images[name], name, settings)
         label = f"photo {index + 1} ({name})"
         if size is None:
             size = (width, height)

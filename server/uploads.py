@@ -26,71 +26,27 @@ from __future__ import annotations
 import io
 import json
 import posixpath
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
-from starlette.datastructures import FormData, UploadFile
+from starlette.datastructures import FormData
 
 from sparsesplat.api.cameras import CamerasFile, Split
 from sparsesplat.api.jobs import JobSpec
 from sparsesplat.api.pose_check import PoseReadingError, check_pose_reading
 from sparsesplat.api.settings import Settings
-from sparsesplat.server.errors import ServiceError, invalid
+from sparsesplat.server.errors import ServiceError, invalid, pydantic_message
+from sparsesplat.server.form_parts import (
+    Upload,
+    form_files,
+    form_text,
+    image_info,
+    unreadable_reason,
+)
+from sparsesplat.server.photo_upload import validate_photos
 
-IMAGE_FORMATS = {"PNG": "png", "JPEG": "jpg", "WEBP": "webp"}
-"""Accepted image formats (as Pillow names them) and the extension they are stored with."""
 _FORM_FIELDS = {"cameras", "images", "depths", "masks", "spec", "intrinsics"}
-
-
-@dataclass
-class Upload:
-    """A validated upload waiting in its staging folder."""
-
-    staging: Path
-    """Folder holding cameras.json, images/, depth/ and masks/ under our names."""
-    spec: JobSpec
-    """The job spec."""
-    n_train_views: int
-    """Training images."""
-    n_test_views: int
-    """Held-out images."""
-
-
-def pydantic_message(exc: ValidationError, prefix: str) -> str:
-    """One line naming each problem's location and what is wrong."""
-    parts = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err.get("loc", ()))
-        msg = str(err.get("msg", "")).removeprefix("Value error, ")
-        if err.get("type") == "enum":  # say what was sent, as the schema's own messages do
-            msg = f"{msg}, got {err.get('input')!r}"
-        parts.append(f"{prefix}{'.' + loc if loc else ''}: {msg}")
-    return "; ".join(parts)
-
-
-def _text(value: str | UploadFile) -> str:
-    if isinstance(value, UploadFile):
-        value.file.seek(0)
-        raw = value.file.read()
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise invalid("invalid_encoding", f"{value.filename}: not UTF-8 text") from exc
-    return value
-
-
-def _check_file_name(name: str | None, field: str) -> str:
-    if not name:
-        raise invalid("invalid_file_name", f"a '{field}' part has no file name")
-    if "/" in name or "\\" in name or name in (".", "..") or "\x00" in name:
-        raise invalid(
-            "invalid_file_name",
-            f"{field} file name {name!r} must be a plain name (no folders, no '..')",
-        )
-    return name
 
 
 def parse_spec(form: FormData) -> JobSpec:
@@ -98,7 +54,7 @@ def parse_spec(form: FormData) -> JobSpec:
     raw = form.get("spec")
     if raw is None:
         return JobSpec()
-    text = _text(raw)
+    text = form_text(raw)
     try:
         return JobSpec.model_validate_json(text or "{}")
     except ValidationError as exc:
@@ -110,7 +66,7 @@ def parse_cameras(form: FormData) -> CamerasFile:
     raw = form.get("cameras")
     if raw is None:
         raise invalid("missing_cameras", "missing the 'cameras' part (the cameras.json file)")
-    text = _text(raw)
+    text = form_text(raw)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -119,54 +75,6 @@ def parse_cameras(form: FormData) -> CamerasFile:
         return CamerasFile.model_validate(data)
     except ValidationError as exc:
         raise invalid("invalid_cameras", pydantic_message(exc, "cameras.json")) from exc
-
-
-def _image_info(data: bytes, name: str, settings: Settings) -> tuple[str, int, int]:
-    """(stored extension, width, height) of an image; ServiceError when refused."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with warnings.catch_warnings():
-            # We compare the size with our own limit below, before decoding.
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(io.BytesIO(data)) as image:
-                fmt = image.format or "?"
-                if fmt not in IMAGE_FORMATS:
-                    raise invalid(
-                        "unsupported_image",
-                        f"{name}: {fmt} images are not accepted; send PNG, JPEG or WebP",
-                    )
-                width, height = image.size
-                megapixels = width * height / 1e6
-                if megapixels > settings.max_megapixels:
-                    raise ServiceError(
-                        413,
-                        "image_too_large",
-                        f"{name}: {width}x{height} is {megapixels:.1f} megapixels; the limit is "
-                        f"{settings.max_megapixels:g} (SPARSESPLAT_MAX_MEGAPIXELS)",
-                    )
-                image.load()
-    except ServiceError:
-        raise
-    except Image.DecompressionBombError as exc:
-        raise ServiceError(413, "image_too_large", f"{name}: {exc}") from exc
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        # Pillow's message names its in-memory buffer ('<_io.BytesIO object at 0x...>'), not
-        # the file: say what it could not read in our own words.
-        reason = _unreadable_reason(exc)
-        raise invalid(
-            "corrupt_image", f"{name}: not a readable PNG/JPEG/WebP image ({reason})"
-        ) from exc
-    return IMAGE_FORMATS[fmt], width, height
-
-
-def _unreadable_reason(exc: Exception) -> str:
-    """Why Pillow could not read a file, without its message (which names the buffer)."""
-    from PIL import UnidentifiedImageError
-
-    if isinstance(exc, UnidentifiedImageError):
-        return "its format is not recognised"
-    return "truncated or corrupt"
 
 
 def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
@@ -200,33 +108,20 @@ def _depth_info(data: bytes, name: str, width: int, height: int) -> str:
             image.load()
     except (UnidentifiedImageError, OSError) as exc:
         raise invalid(
-            "invalid_depth", f"{name}: unreadable depth map ({_unreadable_reason(exc)})"
+            "invalid_depth", f"{name}: unreadable depth map ({unreadable_reason(exc)})"
         ) from exc
     return "png"
 
 
 def _mask_info(data: bytes, name: str, width: int, height: int, settings: Settings) -> str:
     """Stored extension of an object mask after checking it is an image of its image's size."""
-    ext, mask_width, mask_height = _image_info(data, name, settings)
+    ext, mask_width, mask_height = image_info(data, name, settings)
     if (mask_width, mask_height) != (width, height):
         raise invalid(
             "invalid_mask",
             f"{name}: mask is {mask_width}x{mask_height}, its image {width}x{height}",
         )
     return ext
-
-
-def _files(form: FormData, field: str) -> dict[str, bytes]:
-    out: dict[str, bytes] = {}
-    for item in form.getlist(field):
-        if not isinstance(item, UploadFile):
-            raise invalid("invalid_upload", f"'{field}' parts must be files")
-        name = _check_file_name(item.filename, field)
-        if name in out:
-            raise invalid("duplicate_file", f"{field}: {name!r} uploaded twice")
-        item.file.seek(0)
-        out[name] = item.file.read()
-    return out
 
 
 def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload:
@@ -240,8 +135,6 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
         )
     spec = parse_spec(form)
     if form.get("cameras") is None and form.getlist("images"):
-        from sparsesplat.server.photo_upload import validate_photos  # photos without poses
-
         return validate_photos(form, settings, staging, spec)
     if form.get("intrinsics") is not None:
         raise invalid("invalid_upload", "'intrinsics' is for photos without a cameras.json")
@@ -250,9 +143,9 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
         check_pose_reading(cameras)
     except PoseReadingError as exc:
         raise invalid("implausible_poses", str(exc)) from exc
-    images = _files(form, "images")
-    depths = _files(form, "depths")
-    masks = _files(form, "masks")
+    images = form_files(form, "images")
+    depths = form_files(form, "depths")
+    masks = form_files(form, "masks")
     if len(cameras.frames) > settings.max_images:
         raise ServiceError(
             413,
@@ -281,7 +174,7 @@ def validate_upload(form: FormData, settings: Settings, staging: Path) -> Upload
     frames: list[dict[str, Any]] = []
     for index, frame in enumerate(cameras.frames):
         name = posixpath.basename(frame.image)
-        ext, width, height = _image_info(images[name], name, settings)
+        ext, width, height = image_info(images[name], name, settings)
         if (frame.width, frame.height) not in ((None, None), (width, height)):
             raise invalid(
                 "size_mismatch",

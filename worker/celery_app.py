@@ -17,7 +17,7 @@ Processes:
   the one running the job);
 - a task claims its job in the database (``JobStore.claim_job``): a message for a job that is
   running elsewhere, finished, cancelled or deleted is dropped. Then it runs the job exactly
-  as the embedded worker does (``run_job`` under a ``JobHeartbeat``).
+  as the embedded worker does (``JobWorker.run_claimed``, shared with it).
 
 Stopping: SIGTERM to the node (warm shutdown) is passed on to the pool process running a job,
 which stops at its next iteration, keeps a checkpoint, puts the job back in the queue and
@@ -34,24 +34,15 @@ import os
 import signal
 import threading
 import time
-from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any
 
 from celery.signals import worker_process_init, worker_process_shutdown, worker_shutting_down
 
 from sparsesplat.api.jobs import JobState
-from sparsesplat.api.logs import job_context
 from sparsesplat.api.settings import Settings, load_settings
-from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.broker import TRAIN_TASK, make_celery, send_job
-from sparsesplat.api.store.database import make_engine
-from sparsesplat.api.store.workers import WorkerRegistry, new_worker_id
-from sparsesplat.worker.disk_guard import DiskGate
-from sparsesplat.worker.heartbeat import JobHeartbeat
-from sparsesplat.worker.job_runner import run_job
-from sparsesplat.worker.outcome import store_outcome
-from sparsesplat.worker.patient_store import PatientJobStore
+from sparsesplat.worker.job_worker import JobWorker, lower_priority
 
 log = logging.getLogger("sparsesplat.worker")
 
@@ -59,29 +50,15 @@ settings = load_settings()
 app = make_celery(settings, "sparsesplat-worker")
 
 
-@dataclass
-class PoolProcess:
-    """What one pool process holds: its connections, its registration, the job it runs."""
+class PoolProcess(JobWorker):
+    """What one pool process holds: a :class:`JobWorker` (its connections, its registration,
+    the job it runs) whose registration a thread keeps fresh between jobs too."""
 
-    settings: Settings
-    """Configuration."""
-    pid: int = field(default_factory=os.getpid)
-    """The process these connections belong to (never used across a fork)."""
-    worker_id: str = field(default_factory=lambda: new_worker_id("train"))
-    """Its id in the ``workers`` table and as the holder of a job's lease."""
-    job_id: str | None = None
-    """The job it runs now."""
-    current: JobHeartbeat | None = None
-    """That job's heartbeat."""
-
-    def __post_init__(self) -> None:
-        assert self.settings.database_url is not None
-        self.engine = make_engine(self.settings.database_url)
-        self.store = PatientJobStore(self.engine, self.settings.max_attempts, self.settings.lease_s)
-        self.storage = Storage(self.settings.data_dir)
-        self.registry = WorkerRegistry(self.engine)
-        self.gate = DiskGate(self.store, self.storage, self.settings)
-        self._stop = threading.Event()
+    def __init__(self, settings: Settings) -> None:
+        """The connections of this process (never used across a fork)."""
+        super().__init__(settings)
+        self.pid = os.getpid()
+        self._closing = threading.Event()
         self._beats = threading.Thread(target=self._beat, name="worker-heartbeat", daemon=True)
 
     def start(self) -> None:
@@ -93,7 +70,7 @@ class PoolProcess:
         self._beats.start()
 
     def _beat(self) -> None:
-        while not self._stop.wait(self.settings.heartbeat_s):
+        while not self._closing.wait(self.settings.heartbeat_s):
             try:
                 self.registry.beat(self.worker_id, self.job_id)
             except Exception:
@@ -107,7 +84,7 @@ class PoolProcess:
 
     def close(self) -> None:
         """Unregister and release connections."""
-        self._stop.set()
+        self._closing.set()
         try:
             self.registry.unregister(self.worker_id)
         except Exception:
@@ -136,8 +113,6 @@ def _warm_up() -> None:
     which blocks every later load on the machine. Pool processes start after every job, so
     here the window would be hit far more often than in a job."""
     import torch
-
-    from sparsesplat.worker.training import lower_priority
 
     torch.set_num_threads(settings.torch_threads)
     lower_priority(settings)  # renders on the same machine come first
@@ -181,37 +156,20 @@ def run_delivered_job(job_id: str) -> str:
         log.info("message dropped: the job is not queued", extra={"job_id": job_id})
         return "dropped"
 
-    stopping: list[int] = []
-
     def on_sigterm(signum: int, _frame: FrameType | None) -> None:
         log.info("stopping on signal: the job checkpoints and goes back to the queue",
                  extra={"signal": signum, "job_id": job_id})  # fmt: skip
-        stopping.append(signum)
-        if process.current is not None:
-            process.current.request_shutdown()
+        process.request_shutdown()
 
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous: Any = signal.signal(signal.SIGTERM, on_sigterm) if in_main_thread else None
-    process.job_id = job_id
     try:
-        process.registry.beat(process.worker_id, job_id)
-        with job_context(job_id):
-            log.info("job claimed", extra={"attempt": claim.attempt})
-            beat = JobHeartbeat(process.store, job_id, process.worker_id, settings)
-            process.current = beat
-            if stopping:  # the signal came before the heartbeat existed
-                beat.request_shutdown()
-            outcome = run_job(claim, process.store, process.storage, settings, beat)
-            process.current = None
-            stored = store_outcome(
-                process.store, process.storage, process.worker_id, job_id, outcome, settings
-            )
-            if stored and outcome.state == JobState.queued and beat.shutting_down:
-                _send_again(job_id)
-            return outcome.state.value
+        # Storing the outcome is not cut short by a stop: the node waits for this task.
+        ended = process.run_claimed(claim, pause=None)
+        if ended.stored and ended.outcome.state == JobState.queued and ended.shut_down:
+            _send_again(job_id)
+        return ended.outcome.state.value
     finally:
-        process.current = None
-        process.job_id = None
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from sparsesplat.api.jobs import JobSpec
+from sparsesplat.worker.run_spec import run_spec
 
 log = logging.getLogger("sparsesplat.worker")
 
@@ -119,7 +120,6 @@ def expected_job_bytes(spec: JobSpec, upload_dir: Path) -> int:
     from sparsesplat.engine.errors import EngineError
     from sparsesplat.engine.train.config.presets import PRESETS
     from sparsesplat.engine.train.run import plan_run
-    from sparsesplat.worker.job_runner import run_spec
 
     scene = None
     if spec.preset is None:

@@ -34,6 +34,11 @@ from sparsesplat.api.jobs import JobSpec
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.jobs import JobStore
+from sparsesplat.worker.disk_budget import (
+    EXPORT_BYTES_PER_GAUSSIAN,
+    expected_job_bytes,
+    tensor_bytes,
+)
 
 log = logging.getLogger("sparsesplat.worker")
 
@@ -121,7 +126,6 @@ def _state_bytes(trainer: Any, model_only: bool) -> int | None:
     if trainer is None:
         return None
     from sparsesplat.engine.model.checkpoint import model_state
-    from sparsesplat.worker.disk_budget import tensor_bytes
 
     try:
         state = trainer.state_dict()
@@ -131,8 +135,6 @@ def _state_bytes(trainer: Any, model_only: bool) -> int | None:
 
 
 def _export_bytes(trainer: Any) -> int | None:
-    from sparsesplat.worker.disk_budget import EXPORT_BYTES_PER_GAUSSIAN
-
     return None if trainer is None else EXPORT_BYTES_PER_GAUSSIAN * len(trainer.gaussians)
 
 
@@ -155,8 +157,6 @@ class DiskGate:
         if len(self._expected) > EXPECTED_CACHE:
             self._expected.clear()
         if job_id not in self._expected:
-            from sparsesplat.worker.disk_budget import expected_job_bytes
-
             try:
                 job_spec = JobSpec.model_validate(spec)
                 self._expected[job_id] = expected_job_bytes(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
+from sparsesplat.api.names import PresetName
 from sparsesplat.api.scenes.errors import SceneFormatError
 
 SceneFormat = Literal["folder", "llff", "blender", "dtu", "ngp"]
@@ -26,8 +27,9 @@ PAPER_VIEWS: dict[str, int] = {"llff": 3, "blender": 8, "dtu": 3, "ngp": 3}
 """Training views when none are asked for: the paper's setting per format (an upload folder:
 all of its training frames)."""
 
-FORMAT_PRESETS: dict[str, str] = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
-"""Formats with a paper protocol -> the training preset of that protocol."""
+FORMAT_PRESETS: dict[str, PresetName] = {"llff": "llff", "dtu": "dtu", "blender": "blender"}
+"""Formats with a paper protocol -> the training preset of that protocol (the engine's
+``choose_preset`` starts from it; the SDK names it on an upload's spec)."""
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 """Files treated as images when a folder of images is listed."""

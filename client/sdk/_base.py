@@ -239,7 +239,7 @@ class _Base:
         form = {"spec": _spec_json(spec, upload.preset)}
         if isinstance(upload, Photos):  # no cameras: the service estimates them
             if upload.intrinsics is not None:
-                form["intrinsics"] = upload.intrinsics.model_dump_json()
+                form["intrinsics"] = upload.intrinsics.model_dump_json(exclude_none=True)
         else:
             document = json.dumps(upload.cameras).encode()
             files.append(("cameras", ("cameras.json", document, "application/json")))

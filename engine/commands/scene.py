@@ -48,10 +48,10 @@ def describe_scene(args: argparse.Namespace) -> dict[str, Any]:
     from sparsesplat.engine.datasets.common import (
         background_reason,
         camera_layout,
-        choose_preset,
         has_alpha,
     )
     from sparsesplat.engine.priors import compute_priors
+    from sparsesplat.engine.train.config.presets import choose_preset
 
     scene = load_scene(args.path, views=args.views, format=args.format)
     first = scene.train[0]

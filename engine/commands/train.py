@@ -9,8 +9,9 @@ import math
 import sys
 import threading
 import time
-from typing import Any, TextIO
+from typing import Any, TextIO, get_args
 
+from sparsesplat.api.names import PresetName
 from sparsesplat.engine.commands.common import (
     CommandError,
     check_device,
@@ -29,8 +30,9 @@ PRIOR_KINDS = (
 )
 """The ``--prior`` kinds, one line each for ``--help``."""
 
-PRESET_NAMES = ("llff", "dtu", "blender", "object", "default")
-"""Presets in the order ``--help`` lists them (``engine.train.config.presets.PRESETS``)."""
+PRESET_NAMES: tuple[str, ...] = get_args(PresetName)
+"""Presets in the order ``--help`` lists them (``api.names.PresetName``, whose names are
+``engine.train.config.presets.PRESETS``'s)."""
 
 _PRESET_HELP = {
     "llff": "LLFF-format scenes (poses_bounds.npy): the paper's recipe; where the training "

@@ -11,7 +11,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from sparsesplat.api.scenes.formats import FORMAT_PRESETS
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.camera_convert import project, undistort_image
 from sparsesplat.engine.errors import SceneError
@@ -487,31 +486,3 @@ def check_camera_positions(cameras: Sequence[Camera], names: Sequence[str], sour
                 f"position, the others about {typical:.3g}: a typo in its translation or a "
                 "different unit?"
             )
-
-
-def choose_preset(scene: Scene) -> tuple[str, str]:
-    """The training preset for ``scene`` when the user named none, and why (one phrase).
-
-    Formats with a paper protocol get it (llff, dtu, blender). Otherwise an object on an
-    empty background (images with alpha, or a plain white/black backdrop at every border)
-    gets ``object``, and everything else ``default`` (the LLFF recipe), whether the cameras
-    face forward or look inward: on the inward-looking instant-ngp ``fox`` (3 views, 1/4
-    resolution, 1500 iterations) the LLFF recipe scored 13.6 dB against 12.5 dB for the dtu
-    recipe, and the LLFF-format scenes of shared/data are inward orbits trained with it. The
-    reason names the camera layout either way (for the llff format, of the training views:
-    the preset's init and hard pass follow it)."""
-    if scene.format in FORMAT_PRESETS:
-        name = FORMAT_PRESETS[scene.format]
-        reason = f"{scene.format} format: the paper's protocol for it"
-        if name == "llff":  # its init and hard pass follow the training cameras' layout
-            train = camera_layout([v.camera for v in scene.train]).describe()
-            reason += f"; training cameras {train}"
-        return name, reason
-    layout = f"cameras {camera_layout([v.camera for v in scene.train + scene.test]).describe()}"
-    if has_alpha(scene):
-        return "object", f"the images have alpha (an object on an empty background); {layout}"
-    plain = plain_background(scene.train)
-    if plain is not None:
-        name = "white" if plain == WHITE else "black"
-        return "object", f"the images show an object on a plain {name} backdrop; {layout}"
-    return "default", f"{layout}; textured surroundings, no alpha"

@@ -17,6 +17,7 @@ from sparsesplat.api.cameras import (
     CamerasFile,
     Intrinsics,
     PoseDirection,
+    rigid_inverse,
 )
 from sparsesplat.engine.match.errors import MissingMatchDependency
 from sparsesplat.engine.sfm.attempts import ATTEMPTS
@@ -143,7 +144,7 @@ def estimate_cameras(
     frames = [
         CameraFrame(
             image=name,
-            matrix=_camera_to_world(frame.world_to_camera[i]).tolist(),
+            matrix=rigid_inverse(frame.world_to_camera[i].tolist()),
             fx=fx,
             fy=fy,
             cx=cx,
@@ -173,14 +174,6 @@ def estimate_cameras(
     )
 
 
-def _camera_to_world(w2c: np.ndarray) -> np.ndarray:
-    """The rigid inverse [R^T, -R^T t] (exactly rigid, unlike a general inverse)."""
-    c2w = np.eye(4)
-    c2w[:3, :3] = w2c[:3, :3].T
-    c2w[:3, 3] = -w2c[:3, :3].T @ w2c[:3, 3]
-    return c2w
-
-
 def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:
     from PIL import Image, UnidentifiedImageError
 
@@ -208,6 +201,11 @@ def _prior(
 ) -> tuple[CameraPrior, str]:
     if intrinsics is not None:
         i = intrinsics
+        if i.size is not None and i.size != (width, height):
+            raise CameraEstimationError(
+                f"the intrinsics are for {i.size[0]}x{i.size[1]} images but the photos are "
+                f"{width}x{height}"
+            )
         return CameraPrior(i.fx, i.fy, i.cx, i.cy, fixed=True), "given"
     exif = [f for f in (exif_focal_px(p, width, height) for p in paths) if f is not None]
     focal, source = (

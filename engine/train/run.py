@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.engine.datasets.common import camera_layout
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
 from sparsesplat.engine.train.config.overrides import resolve
-from sparsesplat.engine.train.config.presets import preset
+from sparsesplat.engine.train.config.presets import choose_preset, preset
 from sparsesplat.engine.train.loop.progress import ProgressCallback
 from sparsesplat.engine.train.loop.trainer import Trainer
 
@@ -30,7 +31,7 @@ class RunSpec:
     """What to train, however it was asked for (command line or job spec)."""
 
     preset: str | None = None
-    """Preset name; None chooses one from the scene (``datasets.common.choose_preset``)."""
+    """Preset name; None chooses one from the scene (``config.presets.choose_preset``)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Config values by dotted (or old flat) name, applied after the preset's schedule is
     compressed (``iterations`` here means the run length, as :attr:`iterations`)."""
@@ -90,8 +91,6 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
     if spec.preset is not None:
         name = spec.preset
     elif scene is not None:
-        from sparsesplat.engine.datasets.common import choose_preset
-
         name, reason = choose_preset(scene)
     else:
         raise ConfigError("no preset named and no scene to choose one from")
@@ -106,8 +105,6 @@ def training_layout(scene: Scene | None) -> str | None:
     preset's recipe for it; None without a scene or training views."""
     if scene is None or not scene.train:
         return None
-    from sparsesplat.engine.datasets.common import camera_layout
-
     return camera_layout([view.camera for view in scene.train]).kind
 
 

@@ -13,16 +13,13 @@ from typing import Annotated
 from fastapi import APIRouter, Query, WebSocket, WebSocketDisconnect
 
 from sparsesplat.server.auth import Authenticator, Unauthenticated
+from sparsesplat.server.errors import CLOSE_NOT_FOUND, CLOSE_UNAUTHENTICATED
 from sparsesplat.server.state import ServiceState
 
 router = APIRouter(prefix="/v1/jobs", tags=["events"])
 
 POLL_S = 0.25
 """How often a live stream looks for new events."""
-CLOSE_NOT_FOUND = 4404
-"""WebSocket close code: no such job (or another key's)."""
-CLOSE_UNAUTHENTICATED = 4401
-"""WebSocket close code: missing or unknown API key."""
 
 
 @router.websocket("/{job_id}/events")

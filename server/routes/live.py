@@ -20,12 +20,15 @@ from pydantic import ValidationError
 
 from sparsesplat.api.renders import MEDIA_TYPES, LiveFrame, LivePose, pack_live_frame
 from sparsesplat.server.auth import Authenticator, Unauthenticated
-from sparsesplat.server.errors import ServiceError
+from sparsesplat.server.deps import check_render_size, own_model
+from sparsesplat.server.errors import (
+    CLOSE_NOT_FOUND,
+    CLOSE_UNAUTHENTICATED,
+    ServiceError,
+    pydantic_message,
+)
 from sparsesplat.server.render_dispatch import NoRenderWorker, RenderFailed
-from sparsesplat.server.routes.events import CLOSE_NOT_FOUND, CLOSE_UNAUTHENTICATED
-from sparsesplat.server.routes.models import check_render_size, own_model
 from sparsesplat.server.state import ServiceState
-from sparsesplat.server.uploads import pydantic_message
 
 router = APIRouter(prefix="/v1/models", tags=["models"])
 

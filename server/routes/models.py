@@ -12,15 +12,13 @@ from fastapi.responses import FileResponse
 from pydantic import ValidationError
 
 from sparsesplat.api.cameras import AxisConvention, PinholeCamera, PoseDirection
-from sparsesplat.api.jobs import Job, JobState, ModelInfo
+from sparsesplat.api.jobs import ModelInfo
 from sparsesplat.api.names import ARTIFACT_FILES, ExportFormat
 from sparsesplat.api.renders import DEFAULT_RENDER_MODE, RenderMode, RenderOutput, RenderRequest
-from sparsesplat.server.deps import OwnerDep, ServiceDep
-from sparsesplat.server.errors import ServiceError, invalid, not_found
-from sparsesplat.server.expiry import expire_now, expired_error
+from sparsesplat.server.deps import OwnerDep, ServiceDep, check_render_size, own_model
+from sparsesplat.server.errors import ServiceError, invalid, not_found, pydantic_message
 from sparsesplat.server.render_dispatch import NoRenderWorker, RenderFailed
 from sparsesplat.server.state import ServiceState
-from sparsesplat.server.uploads import pydantic_message
 
 router = APIRouter(prefix="/v1/models", tags=["models"])
 
@@ -28,23 +26,6 @@ EXPORTS = {
     fmt: (fmt, "application/octet-stream", ARTIFACT_FILES[fmt]) for fmt in get_args(ExportFormat)
 }
 """Export format → (artifact kind, media type, download name)."""
-
-
-def own_model(service: ServiceState, owner: str, model_id: str) -> Job:
-    """The succeeded job of ``model_id`` if ``owner`` may use it; ServiceError 404 / 409."""
-    job = service.jobs.get(model_id, owner)
-    if job is None:
-        raise not_found("model", model_id)
-    if job.expired:
-        expire_now(service, model_id)  # past its time but not swept yet: its bytes go now
-        raise expired_error(service, job)
-    if job.state != JobState.succeeded:
-        raise ServiceError(
-            409,
-            "model_not_ready",
-            f"job {model_id} is {job.state.value}: a model exists once the job has succeeded",
-        )
-    return job
 
 
 @router.get("/{model_id}", response_model=ModelInfo, summary="Describe a trained model")
@@ -103,28 +84,6 @@ MODEL_METRICS = ("psnr", "ssim", "lpips", "avge")
 BUDGET_METRICS = ("seconds", "time_budget_s", "time_limit_s")
 """Training seconds used and, for a job with a time budget, the budget, or for a job of the
 preset's default length, its time limit (when stored)."""
-
-
-def check_render_size(service: ServiceState, request: RenderRequest) -> None:
-    """ServiceError 413 when the request asks for more cameras or pixels than allowed."""
-    settings = service.settings
-    if request.path is not None and len(request.path) > settings.max_path_cameras:
-        raise ServiceError(
-            413, "path_too_long",
-            f"{len(request.path)} cameras; the limit is {settings.max_path_cameras} "
-            "(SPARSESPLAT_MAX_PATH_CAMERAS)",
-        )  # fmt: skip
-    for camera in request.cameras:
-        megapixels = (
-            (camera.width // request.downscale) * (camera.height // request.downscale) / 1e6
-        )
-        if megapixels > settings.max_render_megapixels:
-            raise ServiceError(
-                413, "render_too_large",
-                f"{camera.width}x{camera.height} / {request.downscale} is {megapixels:.1f} "
-                f"megapixels; the limit is {settings.max_render_megapixels:g} "
-                "(SPARSESPLAT_MAX_RENDER_MEGAPIXELS): ask for a downscale",
-            )  # fmt: skip
 
 
 async def _render(

@@ -8,7 +8,7 @@ import random
 import pytest
 from pydantic import ValidationError
 
-from sparsesplat.api.cameras import CamerasFile
+from sparsesplat.api.cameras import CamerasFile, Intrinsics
 
 POSE = {"convention": "opencv", "pose": "camera_to_world"}
 """Required on the wire: no default convention or pose direction."""
@@ -75,3 +75,25 @@ def test_needs_two_training_views_and_unique_names() -> None:
         )
     with pytest.raises(ValidationError, match=r"more than once: a\.png"):
         CamerasFile.model_validate({**POSE, "frames": [_frame("a.png", 1), _frame("a.png", 2)]})
+
+
+def test_one_intrinsics_serves_the_sdk_helpers_and_a_photos_only_upload() -> None:
+    # In order (the SDK's camera helpers) or by name (a photos-only upload), the same model.
+    lens = Intrinsics(50, 50, 16, 12, 32, 24)
+    assert lens == Intrinsics(fx=50, fy=50, cx=16, cy=12, width=32, height=24)
+    assert lens.size == (32, 24) and lens.fields()["width"] == 32
+    assert lens.scaled(0.5) == Intrinsics(25, 25, 8, 6, 16, 12)
+    upload = Intrinsics.model_validate_json('{"fx": 300, "fy": 300, "cx": 160, "cy": 120}')
+    assert upload.size is None
+    assert upload.model_dump(exclude_none=True) == {"fx": 300, "fy": 300, "cx": 160, "cy": 120}
+    with pytest.raises(ValueError, match="no image size"):
+        upload.fields()
+    with pytest.raises(TypeError, match="both in order and by name"):
+        Intrinsics(50, 50, 16, 12, fx=40)
+    # Validation keeps the wire models' messages (it goes through the same __init__).
+    with pytest.raises(ValidationError, match="missing 'cy'"):
+        Intrinsics.model_validate({"fx": 1, "fy": 1, "cx": 0})
+    with pytest.raises(ValidationError, match="did you mean 'width'"):
+        Intrinsics.model_validate({"fx": 1, "fy": 1, "cx": 0, "cy": 0, "widht": 3})
+    with pytest.raises(ValidationError):
+        Intrinsics(0, 1, 0, 0)

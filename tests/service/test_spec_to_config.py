@@ -16,7 +16,7 @@ from sparsesplat.engine.train.config import ConfigError
 from sparsesplat.engine.train.config.overrides import flat_dict
 from sparsesplat.engine.train.config.presets import PRESET_ITERATIONS
 from sparsesplat.engine.train.run import plan_run
-from sparsesplat.worker.job_runner import build_config, run_spec
+from sparsesplat.worker.run_spec import build_config, run_spec
 
 
 def test_unset_switches_keep_the_presets_values() -> None:

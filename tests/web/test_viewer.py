@@ -328,7 +328,7 @@ def test_viewer_frame_rate_with_50k_gaussians(
 
 def _orbit_504x378(wire: dict[str, Any], n: int) -> list[dict[str, Any]]:
     """``n`` OpenCV world-to-camera cameras at 504x378 orbiting from ``wire``'s pose."""
-    from sparsesplat.worker.bench_service import orbit_cameras
+    from benchmarks.service import orbit_cameras
 
     camera = PinholeCamera.model_validate({k: wire[k] for k in PINHOLE_FIELDS})
     scale = 378 / wire["height"]

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from sparsesplat.api.scenes.formats import FORMAT_PRESETS
+from sparsesplat.engine.datasets.common import WHITE, camera_layout, has_alpha, plain_background
+from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
 from sparsesplat.engine.train.config.overrides import apply_overrides, convert, resolve
 
@@ -244,3 +247,31 @@ def layout_recipe(name: str, layout: str | None, overrides: dict[str, Any]) -> d
     if layout is None or any(resolve(key) == "init.method" for key in overrides):
         return {}
     return LAYOUT_RECIPES.get(name, {}).get(layout, {})
+
+
+def choose_preset(scene: Scene) -> tuple[str, str]:
+    """The training preset for ``scene`` when the user named none, and why (one phrase).
+
+    Formats with a paper protocol get it (llff, dtu, blender). Otherwise an object on an
+    empty background (images with alpha, or a plain white/black backdrop at every border)
+    gets ``object``, and everything else ``default`` (the LLFF recipe), whether the cameras
+    face forward or look inward: on the inward-looking instant-ngp ``fox`` (3 views, 1/4
+    resolution, 1500 iterations) the LLFF recipe scored 13.6 dB against 12.5 dB for the dtu
+    recipe, and the LLFF-format scenes of shared/data are inward orbits trained with it. The
+    reason names the camera layout either way (for the llff format, of the training views:
+    the preset's init and hard pass follow it)."""
+    if scene.format in FORMAT_PRESETS:
+        name = FORMAT_PRESETS[scene.format]
+        reason = f"{scene.format} format: the paper's protocol for it"
+        if name == "llff":  # its init and hard pass follow the training cameras' layout
+            train = camera_layout([v.camera for v in scene.train]).describe()
+            reason += f"; training cameras {train}"
+        return name, reason
+    layout = f"cameras {camera_layout([v.camera for v in scene.train + scene.test]).describe()}"
+    if has_alpha(scene):
+        return "object", f"the images have alpha (an object on an empty background); {layout}"
+    plain = plain_background(scene.train)
+    if plain is not None:
+        backdrop = "white" if plain == WHITE else "black"
+        return "object", f"the images show an object on a plain {backdrop} backdrop; {layout}"
+    return "default", f"{layout}; textured surroundings, no alpha"

@@ -7,7 +7,7 @@ import torch
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.scene import Scene, View
-from tests.engine.scenes.synthetic import look_at_c2w
+from tests.engine.datasets.synthetic import look_at_c2w
 
 
 def texture(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:

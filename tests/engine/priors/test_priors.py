@@ -15,8 +15,8 @@ from sparsesplat.engine.priors import PriorDepth, compute_priors, parse_prior_sp
 from sparsesplat.engine.priors.compare import prior_agreement, scene_agreement, spearman
 from sparsesplat.engine.priors.sheet import contact_sheet
 from sparsesplat.engine.weights import BUNDLED_DIR
+from tests.engine.datasets.synthetic import write_folder_scene
 from tests.engine.priors.synthetic import plane_scene
-from tests.engine.scenes.synthetic import write_folder_scene
 
 PYDNET = BUNDLED_DIR / "pydnet_pp_matterport.onnx"
 

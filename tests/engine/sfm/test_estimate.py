@@ -83,6 +83,12 @@ def test_given_intrinsics_are_held(three) -> None:
     assert max(rotation_errors_deg(_w2c(result), three[1], align(_w2c(result), three[1]))) < 0.5
 
 
+def test_given_intrinsics_of_another_size_are_refused(three) -> None:
+    given = Intrinsics(FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, WIDTH * 2, HEIGHT * 2)
+    with pytest.raises(CameraEstimationError, match=f"but the photos are {WIDTH}x{HEIGHT}"):
+        estimate_cameras(three[0], given, threads=1)
+
+
 def test_written_folder_loads_with_its_points(estimate: CameraEstimate, three, tmp_path) -> None:
     for path in three[0]:
         (tmp_path / path.name).write_bytes(path.read_bytes())

@@ -37,9 +37,8 @@ from sparsesplat.engine.train.config import (
 from sparsesplat.engine.train.config.overrides import config_from_dict, parse_override
 from sparsesplat.engine.train.config.presets import PRESET_ITERATIONS, PRESETS, preset
 from sparsesplat.engine.train.loop.schedule import position_lr
+from tests.engine.color.colour_reference import field_reference
 from tests.engine.numerics import FLOOR_ULPS, UNIT_ROUNDOFF, assert_float32_close
-
-from .colour_reference import field_reference
 
 
 def _brute_force_knn(pts: torch.Tensor) -> torch.Tensor:

@@ -304,7 +304,7 @@ def test_metrics_name_each_held_out_view_and_a_checkpoint_rescores_them(
 ) -> None:
     """``metrics["views"]`` scores every held-out view of the final evaluation (their mean is
     the run's PSNR), and bench-per-view's re-scoring of the checkpoint agrees with them."""
-    from sparsesplat.engine.bench.per_view import view_psnr_of_run
+    from benchmarks.per_view import view_psnr_of_run
 
     scene, priors = make_scene(seed=seed, n_test=3)
     result = Trainer(scene, small(), priors, tmp_path).run()

@@ -1,0 +1,1 @@
+"""Benchmark entry points, each runnable as ``python -m benchmarks.<name>``."""

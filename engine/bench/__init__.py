@@ -1,1 +1,0 @@
-"""Benchmark entry points, each runnable as ``python -m sparsesplat.engine.bench.<name>``."""
