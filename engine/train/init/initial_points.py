@@ -33,6 +33,25 @@ from sparsesplat.engine.train.init.random_init import initial_point_count
 log = logging.getLogger(__name__)
 
 
+def with_matched(
+    cfg: InitConfig,
+    start: tuple[Tensor, Tensor | None, str | None],
+    matched: RunMatches | None,
+) -> tuple[Tensor, Tensor | None, str | None]:
+    """``start`` (points, colours, note as :func:`initial_points` returns them) with the run's
+    matched points appended when ``cfg.add_matched`` (rows without a colour of their own, from
+    the random box, get grey); unchanged otherwise or when there is none."""
+    points, colours, note = start
+    if not cfg.add_matched or matched is None or matched.empty:
+        return start
+    extra = torch.from_numpy(matched.points).to(points)
+    extra_colours = torch.from_numpy(matched.colours).to(points)
+    if colours is None:
+        colours = torch.full_like(points, 0.5)
+    note = f"{note or 'random'}; + {len(extra)} matched points"
+    return torch.cat([points, extra]), torch.cat([colours, extra_colours]), note
+
+
 def initial_points(
     cfg: InitConfig,
     scene: Scene,
@@ -41,34 +60,10 @@ def initial_points(
     depth: list[Any] | None,
     prior_cache: Path | None,
     generator: torch.Generator,
-    matched: RunMatches | None = None,
 ) -> tuple[Tensor, Tensor | None, str | None]:
     """(points (N, 3), colours (N, 3) or None, a note on how they were made or None for the
     plain random box). ``depth``: metric priors for ``dense`` (None: a plane sweep is computed,
-    cached under ``prior_cache``). ``matched``: the run's matched points, appended when
-    ``cfg.add_matched`` (rows without a colour of their own, from the random box, get grey)."""
-    points, colours, note = _start(cfg, scene, box, cameras, depth, prior_cache, generator)
-    if not cfg.add_matched or matched is None or matched.empty:
-        return points, colours, note
-    extra = torch.from_numpy(matched.points).to(points)
-    extra_colours = torch.from_numpy(matched.colours).to(points)
-    if colours is None:
-        colours = torch.full_like(points, 0.5)
-    added = f"{len(extra)} matched points"
-    note = f"{note or 'random'}; + {added}"
-    return torch.cat([points, extra]), torch.cat([colours, extra_colours]), note
-
-
-def _start(
-    cfg: InitConfig,
-    scene: Scene,
-    box: tuple[Tensor, Tensor],
-    cameras: list[Camera],
-    depth: list[Any] | None,
-    prior_cache: Path | None,
-    generator: torch.Generator,
-) -> tuple[Tensor, Tensor | None, str | None]:
-    """The start ``cfg.method`` makes, before any matched points (as :func:`initial_points`)."""
+    cached under ``prior_cache``)."""
     lo, hi = box
     if cfg.points is not None:
         n = cfg.points

