@@ -78,7 +78,7 @@ class PoolProcess:
         assert self.settings.database_url is not None
         self.engine = make_engine(self.settings.database_url)
         self.store = PatientJobStore(self.engine, self.settings.max_attempts, self.settings.lease_s)
-        self.storage = Storage(self.settings.data_dir)
+        self.storage = Storage.for_settings(self.settings)
         self.registry = WorkerRegistry(self.engine)
         self.gate = DiskGate(self.store, self.storage, self.settings)
         self._stop = threading.Event()

@@ -56,7 +56,7 @@ class TrainingWorker:
         # A running job's writes wait out a database outage (up to its lease) instead of
         # failing the attempt: the same store the Celery worker uses.
         self.store = PatientJobStore(self.engine, settings.max_attempts, settings.lease_s)
-        self.storage = Storage(settings.data_dir)
+        self.storage = Storage.for_settings(settings)
         self.registry = WorkerRegistry(self.engine)
         self.gate = DiskGate(self.store, self.storage, settings)
         self.worker_id = new_worker_id("train")
