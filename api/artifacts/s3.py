@@ -7,6 +7,7 @@ boto3 is the ``s3`` extra (``pip install 'sparsesplat[s3]'``): it is imported on
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -86,7 +87,12 @@ class S3Artifacts:
     def check(self) -> None:
         """Raise ``ArtifactStoreError`` unless the bucket exists and answers these
         credentials (one ``HeadBucket``)."""
-        self._call("check the bucket", self._client.head_bucket, Bucket=self.bucket)
+        self._call(
+            "check the bucket",
+            self._client.head_bucket,
+            Bucket=self.bucket,
+            probe=lambda: self._client.list_objects_v2(Bucket=self.bucket, MaxKeys=1),
+        )
 
     def put_file(self, key: str, path: Path) -> None:
         """Upload ``path`` (in parts when large: the object appears only once complete)."""
@@ -102,7 +108,7 @@ class S3Artifacts:
         try:
             self._call(
                 f"read {key}", self._client.download_file, self.bucket, self._key(key),
-                str(partial), Config=self._transfer,
+                str(partial), Config=self._transfer, probe=self._probe(key),
             )  # fmt: skip
             os.replace(partial, path)
         finally:
@@ -112,7 +118,7 @@ class S3Artifacts:
         """One ``HeadObject``."""
         try:
             self._call(f"look up {key}", self._client.head_object,
-                       Bucket=self.bucket, Key=self._key(key))  # fmt: skip
+                       Bucket=self.bucket, Key=self._key(key), probe=self._probe(key))  # fmt: skip
         except ArtifactMissing:
             return False
         return True
@@ -137,22 +143,39 @@ class S3Artifacts:
                        Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True})  # fmt: skip
         return len(keys)
 
-    def _call(self, what: str, func: Any, *args: Any, **kwargs: Any) -> Any:
+    def _probe(self, key: str) -> Callable[[], Any]:
+        """A one-byte GET of ``key``: its error body names what a HEAD's bare status does
+        not (``NoSuchKey`` or ``NoSuchBucket``, ``SignatureDoesNotMatch`` or
+        ``InvalidAccessKeyId``)."""
+        return lambda: self._client.get_object(
+            Bucket=self.bucket, Key=self._key(key), Range="bytes=0-0"
+        )
+
+    def _call(
+        self, what: str, func: Any, *args: Any, probe: Callable[[], Any] | None = None,
+        **kwargs: Any,
+    ) -> Any:  # fmt: skip
         """``func(*args, **kwargs)`` with boto's errors turned into ours, each naming the
-        store and the cause."""
+        store and the cause (asking ``probe`` for it when the answer was a bare status)."""
         from boto3.exceptions import S3UploadFailedError
         from botocore.exceptions import BotoCoreError, ClientError, NoCredentialsError
 
         try:
             return func(*args, **kwargs)
-        except ClientError as exc:
+        except ClientError as first:
+            exc = first
+            if probe is not None and str(exc.response.get("Error", {}).get("Code")).isdigit():
+                try:
+                    probe()
+                except ClientError as detailed:
+                    exc = detailed
             error = exc.response.get("Error", {})
             code = str(error.get("Code", ""))
             message = error.get("Message") or exc.response.get("ResponseMetadata", {}).get(
                 "HTTPStatusCode", ""
             )
             if code in MISSING_CODES:
-                raise ArtifactMissing(f"{what}: no such object in {self.location}") from exc
+                raise ArtifactMissing(f"{what}: no such object in {self.location}") from first
             if code in REFUSED_CODES:
                 raise ArtifactRefused(
                     f"the artifact store {self.location} refused the credentials "
