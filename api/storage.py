@@ -18,6 +18,7 @@ than local file checks without a remote store.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -26,7 +27,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sparsesplat.api.artifacts import ArtifactMissing, RemoteArtifacts, open_remote
+from sparsesplat.api.artifacts import (
+    ArtifactMissing,
+    ArtifactStoreError,
+    RemoteArtifacts,
+    open_remote,
+)
 from sparsesplat.api.artifacts.mirror import Mirror
 from sparsesplat.api.disk import tree_bytes
 from sparsesplat.api.names import ARTIFACT_FILES
@@ -107,7 +113,10 @@ class Storage:
         try:
             self.publish_upload(job_id)
         except BaseException:
-            self.delete_job(job_id)
+            shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
+            with contextlib.suppress(ArtifactStoreError):  # the store's own failure wins
+                if self._mirror is not None:
+                    self._mirror.delete_tree(self.job_dir(job_id))
             raise
         return target
 

@@ -2,19 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
-from tests.artifacts.moto_s3 import MotoS3, start_moto
+from tests.artifacts.moto_s3 import moto_fixture
 
-
-@pytest.fixture(scope="session")
-def s3(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MotoS3]:
-    """moto's S3 server for the session (skips when moto[server] / boto3 are missing)."""
-    try:
-        server = start_moto(tmp_path_factory.mktemp("moto") / "moto.log")
-    except ImportError as exc:
-        pytest.skip(f"{exc.name} missing: pip install 'moto[server]' boto3 (the dev extra)")
-    yield server
-    server.stop()
+s3 = pytest.fixture(scope="session", name="s3")(moto_fixture)
+"""moto's S3 server for the session (tests.artifacts.moto_s3)."""

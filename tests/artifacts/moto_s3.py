@@ -17,10 +17,12 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
+import pytest
 
 from tests.service.live import free_port
 
@@ -128,3 +130,14 @@ def start_moto(log: Path) -> MotoS3:
         server.stop()
         raise
     return server
+
+
+def moto_fixture(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MotoS3]:
+    """moto's S3 server for the session (skips when moto[server] / boto3 are missing); a
+    conftest makes it a fixture: ``s3 = pytest.fixture(scope="session")(moto_fixture)``."""
+    try:
+        server = start_moto(tmp_path_factory.mktemp("moto") / "moto.log")
+    except ImportError as exc:
+        pytest.skip(f"{exc.name} missing: pip install 'moto[server]' boto3 (the dev extra)")
+    yield server
+    server.stop()
