@@ -155,3 +155,38 @@ def test_the_location_setting_is_checked() -> None:
         load_settings(artifacts="/mnt/shared")
     with pytest.raises(ValueError, match="no bucket"):
         load_settings(artifacts="s3:///prefix")
+
+
+def test_a_running_job_stores_what_resume_and_the_server_need(s3: MotoS3, tmp_path: Path) -> None:
+    from sparsesplat.worker.artifact_sync import RunSync
+
+    bucket = s3.new_bucket()
+    worker = storage(s3, tmp_path, bucket)
+    run = worker.run_dir(JOB)
+    (run / "priors").mkdir(parents=True)
+    files = {
+        "checkpoint.pt": b"iteration 10",
+        "metrics_series.png": b"plot",
+        "priors/view_000.png": b"prior picture",
+        "priors/cache_0.npz": b"prior cache",  # scratch: never stored
+        "checkpoint.pt.tmp": b"half a checkpoint",  # partial: never stored
+    }
+    for name, data in files.items():
+        (run / name).write_bytes(data)
+    lease = {"held": True}
+    sync = RunSync(worker, JOB, allowed=lambda: lease["held"])
+    assert sync.push_changed() == 3
+    stored = s3.objects(bucket, f"deploy/jobs/{JOB}/run/")
+    assert {k.rsplit("/run/", 1)[1] for k in stored} == {
+        "checkpoint.pt", "metrics_series.png", "priors/view_000.png"
+    }  # fmt: skip
+    assert sync.push_changed() == 0, "unchanged files went up again"
+
+    (run / "checkpoint.pt.tmp").replace(run / "checkpoint.pt")  # the trainer's next one
+    assert sync.push_changed() == 1
+    lease["held"] = False  # the job is another worker's now: an older checkpoint stays here
+    (run / "checkpoint.pt").write_bytes(b"iteration 3")
+    assert sync.push_changed() == 0
+    again = storage(s3, tmp_path / "other", bucket)
+    assert again.fetch_checkpoint(JOB)
+    assert again.artifact(JOB, "checkpoint").read_bytes() == b"half a checkpoint"
