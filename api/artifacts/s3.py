@@ -7,6 +7,7 @@ boto3 is the ``s3`` extra (``pip install 'sparsesplat[s3]'``): it is imported on
 from __future__ import annotations
 
 import os
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -104,7 +105,8 @@ class S3Artifacts:
     def get_file(self, key: str, path: Path) -> None:
         """Download ``key`` to ``path`` through a partial file renamed into place."""
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(path.name + PARTIAL_SUFFIX)
+        # A name of its own: two requests fetching one file at once must not share a partial.
+        partial = path.with_name(f"{path.name}.{uuid.uuid4().hex[:8]}{PARTIAL_SUFFIX}")
         try:
             self._call(
                 f"read {key}", self._client.download_file, self.bucket, self._key(key),
