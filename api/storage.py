@@ -190,3 +190,17 @@ class Storage:
     def job_ids_on_disk(self) -> list[str]:
         """Job folders present (for finding files whose job record is gone)."""
         return sorted(p.name for p in (self.root / "jobs").iterdir() if _JOB_ID.match(p.name))
+
+    def stored_jobs(self) -> dict[str, float]:
+        """Every job with files here or in the remote store → when they last changed (Unix
+        seconds: the folder's time here, the newest object's in the store; the later one),
+        for finding files whose job record is gone."""
+        out: dict[str, float] = {}
+        for job_id in self.job_ids_on_disk():
+            with contextlib.suppress(OSError):  # removed meanwhile
+                out[job_id] = self.job_dir(job_id).stat().st_mtime
+        if self._mirror is not None:
+            for job_id, stored_at in self._mirror.newest(self.root / "jobs").items():
+                if _JOB_ID.match(job_id):
+                    out[job_id] = max(out.get(job_id, 0.0), stored_at)
+        return out

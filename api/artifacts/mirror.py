@@ -92,6 +92,15 @@ class Mirror:
         """Bytes stored under ``folder``."""
         return sum(self.remote.sizes(self.key(folder) + "/").values())
 
+    def newest(self, folder: Path) -> dict[str, float]:
+        """For each folder stored under ``folder``: when its newest file was stored."""
+        out: dict[str, float] = {}
+        start = len(self.key(folder)) + 1
+        for key, stored_at in self.remote.modified(self.key(folder) + "/").items():
+            name = key[start:].split("/", 1)[0]
+            out[name] = max(out.get(name, 0.0), stored_at)
+        return out
+
     def delete_tree(self, folder: Path) -> None:
         """Remove what is stored under ``folder``."""
         self.remote.delete_prefix(self.key(folder) + "/")

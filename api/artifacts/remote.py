@@ -40,6 +40,10 @@ class RemoteArtifacts(Protocol):
         """Every object under ``prefix`` (key → bytes)."""
         ...
 
+    def modified(self, prefix: str) -> dict[str, float]:
+        """Every object under ``prefix`` (key → when it was stored, Unix seconds)."""
+        ...
+
     def delete_prefix(self, prefix: str) -> int:
         """Remove every object under ``prefix``; returns how many went."""
         ...

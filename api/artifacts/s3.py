@@ -127,14 +127,22 @@ class S3Artifacts:
 
     def sizes(self, prefix: str) -> dict[str, int]:
         """Every object under ``prefix`` (keys relative to the store's prefix)."""
-        out: dict[str, int] = {}
+        return {item["Key"]: int(item["Size"]) for item in self._list(prefix)}
+
+    def modified(self, prefix: str) -> dict[str, float]:
+        """Every object under ``prefix`` and when it was stored."""
+        return {item["Key"]: item["LastModified"].timestamp() for item in self._list(prefix)}
+
+    def _list(self, prefix: str) -> list[dict[str, Any]]:
+        """The listing of ``prefix`` (keys made relative to the store's prefix)."""
         strip = len(self._key(""))
         paginator = self._client.get_paginator("list_objects_v2")
         pages = paginator.paginate(Bucket=self.bucket, Prefix=self._key(prefix))
+        items = []
         for page in self._call(f"list {prefix}", list, pages):
             for item in page.get("Contents", []):
-                out[item["Key"][strip:]] = int(item["Size"])
-        return out
+                items.append({**item, "Key": item["Key"][strip:]})
+        return items
 
     def delete_prefix(self, prefix: str) -> int:
         """Delete the objects under ``prefix`` (1000 per request)."""

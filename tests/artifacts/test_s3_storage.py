@@ -190,3 +190,22 @@ def test_a_running_job_stores_what_resume_and_the_server_need(s3: MotoS3, tmp_pa
     again = storage(s3, tmp_path / "other", bucket)
     assert again.fetch_checkpoint(JOB)
     assert again.artifact(JOB, "checkpoint").read_bytes() == b"half a checkpoint"
+
+
+def test_jobs_known_only_to_the_bucket_are_found_for_the_stray_sweep(
+    s3: MotoS3, tmp_path: Path
+) -> None:
+    import time
+
+    bucket = s3.new_bucket()
+    worker, api = storage(s3, tmp_path / "w", bucket), storage(s3, tmp_path / "api", bucket)
+    path = worker.artifact(JOB, "checkpoint")
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"left by a worker killed after its job was deleted")
+    before = time.time()
+    worker.publish(path)
+    stored = api.stored_jobs()
+    assert set(stored) == {JOB}, "the API has no folder of it: only the bucket knows it"
+    assert abs(stored[JOB] - before) < 60  # the store's clock: a sweep waits 10 minutes
+    api.delete_job(JOB)
+    assert api.stored_jobs() == {} and s3.objects(bucket) == {}
