@@ -56,7 +56,23 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=1, le=65535)
     """TCP port of the HTTP server."""
     data_dir: Path = Path("sparsesplat-data")
-    """Root of local storage: uploads, models, renders, the SQLite database."""
+    """Root of local storage: uploads, models, renders, the SQLite database. With
+    ``artifacts`` set, this machine's working copy of the job files (the bucket holds them)."""
+    artifacts: str = ""
+    """Where job files (uploads, checkpoints, models, exports) are kept for good: empty (the
+    default) keeps them in ``data_dir`` alone, which workers on other machines must then
+    mount; ``s3://BUCKET/PREFIX`` keeps them in an S3-API bucket (AWS S3, MinIO, Ceph, ...)
+    shared by the API and every worker, which then share no folder (needs the ``s3``
+    extra)."""
+    s3_endpoint_url: str | None = None
+    """Endpoint of an S3-compatible store (``http://minio:9000``); unset: AWS S3."""
+    s3_region: str | None = None
+    """Region of the bucket; unset: ``AWS_DEFAULT_REGION``, else ``us-east-1``."""
+    s3_access_key_id: str | None = None
+    """Access key of the bucket; unset: boto3's chain (``AWS_ACCESS_KEY_ID``, a profile, an
+    instance role)."""
+    s3_secret_access_key: SecretStr | None = None
+    """Secret of ``s3_access_key_id``; unset: boto3's chain (``AWS_SECRET_ACCESS_KEY``, ...)."""
     database_url: str | None = None
     """SQLAlchemy-style URL of the job store. Default: ``sqlite:///<data_dir>/sparsesplat.db``.
     Use ``postgresql://user:pass@host/db`` for the distributed setup."""
@@ -140,6 +156,13 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _fill_database_url(self) -> Settings:
+        if self.artifacts and not self.artifacts.startswith("s3://"):
+            raise ValueError(
+                f"artifacts: {self.artifacts!r} is not a location; leave it empty (files in "
+                "data_dir) or write s3://BUCKET/PREFIX"
+            )
+        if self.artifacts.rstrip("/") == "s3:/" or self.artifacts.startswith("s3:///"):
+            raise ValueError(f"artifacts: no bucket in {self.artifacts!r}: s3://BUCKET/PREFIX")
         if self.database_url is None:
             self.database_url = f"sqlite:///{self.data_dir / 'sparsesplat.db'}"
         if self.heartbeat_s * 2 >= self.lease_s:
@@ -154,6 +177,10 @@ class Settings(BaseSettings):
         for name, value in self.model_dump(mode="json").items():
             if name == "api_keys":
                 value = [k.get_secret_value() for k in self.api_keys]
+            elif name == "s3_secret_access_key" and self.s3_secret_access_key is not None:
+                value = self.s3_secret_access_key.get_secret_value()
+            if value is None:  # unset: the child reads the same default
+                continue
             out[ENV_PREFIX + name.upper()] = value if isinstance(value, str) else json.dumps(value)
         return out
 

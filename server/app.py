@@ -16,6 +16,7 @@ from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from sparsesplat import __version__
+from sparsesplat.api.artifacts import ArtifactMissing, ArtifactStoreError
 from sparsesplat.api.disk import disk_full_message, free_bytes, is_disk_full
 from sparsesplat.api.schemas import ErrorBody
 from sparsesplat.api.settings import Settings, load_settings
@@ -106,6 +107,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.warning("database unavailable", exc_info=True)
         message = "the job database is not answering; try again shortly"
         return _error(503, "database_unavailable", message, {"Retry-After": "5"})
+
+    @app.exception_handler(ArtifactMissing)
+    async def _artifact_missing(request: Request, exc: ArtifactMissing) -> JSONResponse:
+        # A record whose file the artifact store lacks (deleted by hand, lost by the store).
+        log.error("artifact missing", extra={"path": request.url.path, "error": str(exc)})
+        return _error(404, "artifact_missing", f"a file of this job is missing: {exc}")
+
+    @app.exception_handler(ArtifactStoreError)
+    async def _artifact_store_down(request: Request, exc: ArtifactStoreError) -> JSONResponse:
+        log.error("artifact store failed", extra={"path": request.url.path, "error": str(exc)})
+        return _error(503, "artifact_store_unavailable", str(exc), {"Retry-After": "30"})
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

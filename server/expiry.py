@@ -12,7 +12,6 @@ import asyncio
 import logging
 import time
 from datetime import UTC, datetime
-from pathlib import Path
 
 from sparsesplat.api.jobs import Job
 from sparsesplat.server.errors import ServiceError
@@ -48,9 +47,11 @@ def sweep(service: ServiceState) -> list[str]:
             service.storage.delete_job(job_id)
             removed.append(job_id)
     known = service.jobs.all_ids()
-    for job_id in service.storage.job_ids_on_disk():
-        folder = service.storage.job_dir(job_id)
-        if job_id not in known and _age_s(folder) > STRAY_AGE_S:
+    now = time.time()
+    # Here and, with an artifact store, in the bucket (a worker killed after its job was
+    # deleted leaves objects no machine has a folder for).
+    for job_id, changed_at in service.storage.stored_jobs().items():
+        if job_id not in known and now - changed_at > STRAY_AGE_S:
             service.storage.delete_job(job_id)
             removed.append(job_id)
     if removed:
@@ -62,13 +63,6 @@ def expire_now(service: ServiceState, job_id: str) -> None:
     """Remove an expired model's files at once (a request found it past its time)."""
     if service.jobs.mark_expired(job_id):
         service.storage.delete_job(job_id)
-
-
-def _age_s(folder: Path) -> float:
-    try:
-        return time.time() - folder.stat().st_mtime
-    except OSError:
-        return 0.0
 
 
 async def sweep_forever(service: ServiceState) -> None:

@@ -51,13 +51,15 @@ class ServiceState:
         migrate(engine)
         jobs = JobStore(engine, settings.max_attempts, settings.model_ttl_days * 86400)
         registry = WorkerRegistry(engine)
+        storage = Storage.for_settings(settings)
+        storage.check()  # refused credentials or a missing bucket stop the server at once
         return cls(
             settings=settings,
             engine=engine,
             jobs=jobs,
             keys=KeyStore(engine),
             workers=registry,
-            storage=Storage(settings.data_dir),
+            storage=storage,
             dispatch=make_dispatcher(settings),
             renders=RenderDispatcher(registry),
             render_limit=RateLimiter(settings.renders_per_second, 2 * settings.renders_per_second),

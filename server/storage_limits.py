@@ -1,12 +1,13 @@
 """What a key stores against its limits, and the free space an upload needs.
 
-Usage is measured, not counted: the bytes of the files under the key's job folders, so the
-figures equal what is on disk (a running job's checkpoint included).
+Usage is measured, not counted: the bytes of the files under the key's job folders (or its
+jobs' objects in the bucket, with a remote artifact store), so the figures equal what is
+stored (a running job's checkpoint included).
 """
 
 from __future__ import annotations
 
-from sparsesplat.api.disk import disk_full_message, free_bytes, mb, tree_bytes
+from sparsesplat.api.disk import disk_full_message, free_bytes, mb
 from sparsesplat.api.usage import Usage
 from sparsesplat.server.errors import ServiceError
 from sparsesplat.server.state import ServiceState
@@ -15,7 +16,7 @@ from sparsesplat.server.state import ServiceState
 def key_usage(service: ServiceState, owner: str) -> Usage:
     """``owner``'s usage and limits (walks its job folders: call off the event loop)."""
     settings = service.settings
-    stored = sum(tree_bytes(service.storage.job_dir(i)) for i in service.jobs.ids_of_owner(owner))
+    stored = sum(service.storage.job_bytes(i) for i in service.jobs.ids_of_owner(owner))
     counts = service.jobs.counts_of_owner(owner)
     return Usage(
         owner=owner,

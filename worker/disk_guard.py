@@ -159,6 +159,7 @@ class DiskGate:
         if job_id not in self._expected:
             try:
                 job_spec = JobSpec.model_validate(spec)
+                self.storage.fetch_upload(job_id)  # from the artifact store, when one is set
                 self._expected[job_id] = expected_job_bytes(
                     job_spec, self.storage.upload_dir(job_id)
                 )

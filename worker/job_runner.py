@@ -13,11 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.api.artifacts import ArtifactMissing, ArtifactStoreError
 from sparsesplat.api.disk import remove_partial_files
 from sparsesplat.api.jobs import JobSpec, JobState, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import Storage
 from sparsesplat.api.store.jobs import Claim, JobStore
+from sparsesplat.worker.artifact_sync import RunSync, kept_for_good
 from sparsesplat.worker.camera_estimation import estimate_upload_cameras
 from sparsesplat.worker.disk_guard import WriteSites
 from sparsesplat.worker.heartbeat import JobHeartbeat
@@ -53,12 +55,19 @@ def run_job(
     run_dir = storage.run_dir(claim.job_id)
     sites = WriteSites(storage, claim.job_id)
     beat.on_phase = sites.enter
+    sync = RunSync(storage, claim.job_id, allowed=lambda: not beat.lost)
     beat.start()
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        return _train(claim, spec, store, storage, settings, run_dir, beat)
+        return _train(claim, spec, store, storage, settings, run_dir, beat, sync)
     except MemoryError:
         return Outcome(JobState.failed, "ran out of memory: try smaller images or fewer Gaussians")
+    except ArtifactMissing as exc:
+        return Outcome(JobState.failed, f"the job's files are missing from the artifact store: "
+                                        f"{exc}")  # fmt: skip
+    except ArtifactStoreError as exc:  # refused credentials, no bucket, a store that is down
+        log.error("artifact store failed", extra={"error": str(exc)})
+        return Outcome(JobState.failed, str(exc))
     except Exception as exc:
         # A write that failed (a full disk above all) fails the job naming the write, after
         # its partial files are gone: never a worker that dies and a job left running.
@@ -70,6 +79,7 @@ def run_job(
             return Outcome(JobState.failed, public_message(str(exc), storage, claim.job_id))
         raise
     finally:
+        sync.stop()
         beat.stop()
         if not beat.lost:  # else the job runs elsewhere now, and its partial files are its own
             remove_partial_files(storage.job_dir(claim.job_id))
@@ -83,6 +93,7 @@ def _train(
     settings: Settings,
     run_dir: Path,
     beat: JobHeartbeat,
+    sync: RunSync,
 ) -> Outcome:
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.model.checkpoint import CHECKPOINT_NAME
@@ -91,7 +102,12 @@ def _train(
 
     device = settings.device.value if settings.device.value != "auto" else _auto_device()
     beat.set_phase("preparing")
+    # With a remote artifact store: the upload and the latest checkpoint come from the bucket
+    # (this machine may never have seen the job, or trained it less far than another did).
+    storage.fetch_upload(claim.job_id)
+    storage.fetch_checkpoint(claim.job_id)
     estimate_upload_cameras(storage.upload_dir(claim.job_id), claim.job_id, store, beat, settings)
+    storage.publish_upload(claim.job_id)  # the estimated cameras join the photos
     scene = load_scene(storage.upload_dir(claim.job_id), format="folder")
 
     def planned(plan: RunPlan) -> None:
@@ -141,7 +157,11 @@ def _train(
     trainer, config = run.trainer, run.plan.config
     budget = config.time_budget_s
     beat.attach(trainer, config.iterations if budget is None else None, budget)
+    sync.start()
     result = trainer.run()
+    sync.stop()
+    if not beat.lost and result.stopped:  # the checkpoint kept on stopping: resume needs it
+        sync.push_changed()
     if beat.lost:
         return Outcome(JobState.queued, "lease lost to another worker")
     if beat.shutting_down and result.stopped:
@@ -150,6 +170,10 @@ def _train(
         return Outcome(JobState.cancelled, "cancelled; the last checkpoint was kept")
     beat.set_phase("storing")
     disk_bytes = _keep_only_the_model(storage, claim.job_id, run_dir)
+    # The final files are stored before the job is marked succeeded: a server on another
+    # machine serves them from the store.
+    sync.push_changed()
+    storage.publish_run(claim.job_id, kept_for_good(storage, claim.job_id))
     for warning in result.metrics.get("warnings", []):
         store.add_warning(claim.job_id, public_message(str(warning), storage, claim.job_id))
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}

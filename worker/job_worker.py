@@ -71,7 +71,7 @@ class JobWorker:
         # A running job's writes wait out a database outage (up to its lease) instead of
         # failing the attempt.
         self.store = PatientJobStore(self.engine, settings.max_attempts, settings.lease_s)
-        self.storage = Storage(settings.data_dir)
+        self.storage = Storage.for_settings(settings)
         self.registry = WorkerRegistry(self.engine)
         self.gate = DiskGate(self.store, self.storage, settings)
         """Whether a queued job's expected bytes fit on the disk now."""

@@ -8,6 +8,7 @@ import time
 
 import sqlalchemy as sa
 
+from sparsesplat.api.artifacts import ArtifactStoreError
 from sparsesplat.api.disk import is_disk_full
 from sparsesplat.api.jobs import JobState
 from sparsesplat.api.settings import Settings
@@ -41,7 +42,10 @@ def store_outcome(
             else:
                 store.finish(job_id, worker_id, outcome.state, outcome.message, outcome.result)
             if store.owner_of(job_id) is None:  # deleted while it ran: what it wrote goes too
-                storage.delete_job(job_id)
+                try:
+                    storage.delete_job(job_id)
+                except ArtifactStoreError as exc:  # the bucket keeps them; never end the worker
+                    log.error("cannot remove a deleted job's files", extra={"error": str(exc)})
             log.info("job ended", extra={"state": outcome.state.value})
             return True
         except sa.exc.OperationalError as exc:

@@ -14,6 +14,7 @@ the encoded bytes (a ZIP of frames for a camera path); ``GET /healthz`` answers 
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import logging
@@ -60,8 +61,10 @@ class ModelCache:
         FileNotFoundError if none."""
         from sparsesplat.engine.model import load_model
 
-        path = self.storage.artifact(model_id, "checkpoint")
-        mtime = path.stat().st_mtime  # FileNotFoundError when the model does not exist
+        # A succeeded job's model never changes: a copy here (from the artifact store, when
+        # one is set) serves until evicted. FileNotFoundError when the model does not exist.
+        path = self.storage.fetch(self.storage.artifact(model_id, "checkpoint"))
+        mtime = path.stat().st_mtime
         cached = self._models.get(model_id)
         if cached is not None and cached[0] == mtime:
             self._models.move_to_end(model_id)
@@ -72,7 +75,10 @@ class ModelCache:
         if mode == "baked" and model_id not in self._export_read:
             # Read on the first baked render only: most models are only ever rendered exactly.
             # The run's export holds the bake fitted to the training directions too.
-            model.use_export_sh(self.storage.artifact(model_id, "ply"))
+            ply = self.storage.artifact(model_id, "ply")
+            with contextlib.suppress(FileNotFoundError):  # no export: the model bakes its own
+                ply = self.storage.fetch(ply)
+            model.use_export_sh(ply)
             self._export_read.add(model_id)
         return model
 
@@ -211,7 +217,7 @@ def serve_renders(settings: Settings, host: str = "127.0.0.1", port: int = 0) ->
     device = settings.device.value if settings.device.value != "auto" else (
         "cuda" if torch.cuda.is_available() else "cpu"
     )  # fmt: skip
-    cache = ModelCache(Storage(settings.data_dir), settings.render_cache_models, device)
+    cache = ModelCache(Storage.for_settings(settings), settings.render_cache_models, device)
     ThreadingHTTPServer.request_queue_size = 128  # bursts of connections must not be refused
     server = ThreadingHTTPServer((host, port), _handler(Renderer(cache)))
     address = f"{host}:{server.server_address[1]}"

@@ -13,6 +13,7 @@ from fastapi import APIRouter, Header, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from starlette.formparsers import MultiPartException
 
+from sparsesplat.api.artifacts import ArtifactMissing
 from sparsesplat.api.disk import disk_full_message, free_bytes, is_disk_full
 from sparsesplat.api.jobs import Job, JobPage, JobState, Record
 from sparsesplat.api.storage import PHOTOS_FILE
@@ -134,7 +135,7 @@ async def submit_job(
             raise
         # Files first, record second: a worker that claims the job finds its upload in place.
         job_id = new_job_id()
-        service.storage.commit_upload(staging, job_id)
+        await asyncio.to_thread(service.storage.commit_upload, staging, job_id)
         try:
             job, created = await asyncio.to_thread(
                 service.jobs.create, job_id, owner, upload.spec, upload.n_train_views,
@@ -241,11 +242,12 @@ def get_metrics(
 @router.get("/{job_id}/metrics.png", summary="Plot of held-out error against run time")
 def get_metrics_plot(job: OwnJobDep, service: ServiceDep) -> FileResponse:
     """PSNR, SSIM, LPIPS and AVGE against training seconds (redrawn at every record)."""
-    path = service.storage.artifact(job.id, "series_png")
-    if not path.is_file():
+    try:  # redrawn while the job runs: the stored one is the latest
+        path = service.storage.fetch(service.storage.artifact(job.id, "series_png"), fresh=True)
+    except ArtifactMissing:
         raise ServiceError(
             404, "plot_not_ready", "no held-out record yet: the plot appears with the first one"
-        )
+        ) from None
     return FileResponse(path, media_type="image/png")
 
 
@@ -254,18 +256,19 @@ def get_image(
     job: OwnJobDep, service: ServiceDep, index: Annotated[int, Path(ge=0)]
 ) -> FileResponse:
     """The ``index``-th frame's image as uploaded (frames in ``cameras.json`` order)."""
-    upload = service.storage.upload_dir(job.id)
-    if (upload / "cameras.json").is_file():
-        frames = json.loads((upload / "cameras.json").read_text())["frames"]
+    storage = service.storage
+    upload = storage.upload_dir(job.id)
+    if storage.has(upload / "cameras.json"):
+        frames = json.loads(storage.fetch(upload / "cameras.json").read_text())["frames"]
     else:  # photos without cameras, not estimated yet (server/photo_upload.py)
-        manifest = json.loads((upload / PHOTOS_FILE).read_text())
+        manifest = json.loads(storage.fetch(upload / PHOTOS_FILE).read_text())
         frames = [{"image": image} for image in manifest["images"]]
     if index >= len(frames):
         raise ServiceError(
             404, "image_not_found",
             f"job {job.id} has {len(frames)} images: indices 0 to {len(frames) - 1}",
         )  # fmt: skip
-    path = service.storage.upload_dir(job.id) / frames[index]["image"]
+    path = storage.fetch(upload / frames[index]["image"])
     return FileResponse(path, media_type=_IMAGE_TYPES.get(path.suffix, "application/octet-stream"))
 
 
@@ -280,12 +283,13 @@ def get_prior(
             f"job {job.id} has {job.n_train_views} training views: depth priors 0 to "
             f"{job.n_train_views - 1}",
         )  # fmt: skip
-    path = service.storage.prior_picture(job.id, index)
-    if not path.is_file():
+    try:
+        path = service.storage.fetch(service.storage.prior_picture(job.id, index))
+    except ArtifactMissing:
         raise ServiceError(
             404, "prior_not_found",
             f"no depth prior {index} for job {job.id} (none yet, or the job uses no prior)",
-        )  # fmt: skip
+        ) from None  # fmt: skip
     return FileResponse(path, media_type="image/png")
 
 

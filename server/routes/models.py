@@ -11,6 +11,7 @@ from fastapi import APIRouter, Query, Response
 from fastapi.responses import FileResponse
 from pydantic import ValidationError
 
+from sparsesplat.api.artifacts import ArtifactMissing
 from sparsesplat.api.cameras import AxisConvention, PinholeCamera, PoseDirection
 from sparsesplat.api.jobs import ModelInfo
 from sparsesplat.api.names import ARTIFACT_FILES, ExportFormat
@@ -33,14 +34,14 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
     """Size, final held-out metrics, exports and the cameras it was trained with."""
     job = own_model(service, owner, model_id)
     result = service.jobs.result(model_id) or {}
-    cameras_file = service.storage.upload_dir(model_id) / "cameras.json"
-    document = json.loads(cameras_file.read_text())
+    storage = service.storage
+    document = json.loads(storage.fetch(storage.upload_dir(model_id) / "cameras.json").read_text())
     cameras = [
         {**frame, "convention": document["convention"], "pose": document["pose"]}
         for frame in document["frames"]
     ]
     exports = [name for name, (kind, _, _) in EXPORTS.items()
-               if service.storage.artifact(model_id, kind).is_file()]  # fmt: skip
+               if storage.has(storage.artifact(model_id, kind))]  # fmt: skip
     return ModelInfo(
         id=model_id,
         n_gaussians=int(result.get("n_gaussians", 0)),
@@ -52,7 +53,7 @@ def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
         background=tuple(result["background"]) if result.get("background") else None,
         disk_bytes=result.get("disk_bytes"),
         depth_priors=sum(
-            service.storage.prior_picture(model_id, k).is_file()
+            storage.has(storage.prior_picture(model_id, k))
             for k in range(sum(c.get("split", "train") == "train" for c in cameras))
         ),
         pinned=job.pinned,
@@ -179,7 +180,10 @@ def export_model(
     (antimatter15 layout) or ``checkpoint`` (sparsesplat's own, for resuming or rendering)."""
     own_model(service, owner, model_id)
     kind, media, name = EXPORTS[format]
-    path = service.storage.artifact(model_id, kind)
-    if not path.is_file():
-        raise ServiceError(404, "export_missing", f"model {model_id} has no {format} export")
+    try:
+        path = service.storage.fetch(service.storage.artifact(model_id, kind))
+    except ArtifactMissing:
+        raise ServiceError(
+            404, "export_missing", f"model {model_id} has no {format} export"
+        ) from None
     return FileResponse(path, media_type=media, filename=f"{model_id}-{name}")

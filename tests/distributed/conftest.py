@@ -15,6 +15,7 @@ from typing import TypeVar
 
 import pytest
 
+from tests.artifacts.moto_s3 import moto_fixture
 from tests.distributed.servers import PostgresServer, RedisServer, Unavailable
 from tests.service.live import LiveService
 from tests.service.scenes import MIC, write_mic_upload
@@ -58,6 +59,10 @@ def postgres() -> Iterator[PostgresServer]:
 def redis_server() -> Iterator[RedisServer]:
     """A Redis server private to this test session (no persistence)."""
     yield from _private_server(RedisServer, "Redis")
+
+
+s3 = pytest.fixture(scope="session", name="s3")(moto_fixture)
+"""moto's S3 server for the session, for job files in a bucket (tests.artifacts.moto_s3)."""
 
 
 @pytest.fixture(scope="session")
