@@ -73,6 +73,7 @@ from sparsesplat.engine.model.raster import bind_raster
 from sparsesplat.engine.model.render import render_view, view_colors
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.threads import torch_threads
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.init.initial_points import initial_points, with_matched
 from sparsesplat.engine.train.init.matched_points import RunMatches, run_matches
@@ -166,15 +167,9 @@ class Trainer:
         correspondence term uses them (``TrainConfig.uses_matches``)."""
         if self.config.uses_matches:
             cache = self.out_dir / "priors" if self.out_dir is not None else None
-            prev_threads = torch.get_num_threads()
-            if self.config.threads:  # the run's thread count, as for its iterations
-                torch.set_num_threads(self.config.threads)
-            try:
-                self.matches = run_matches(
-                    self.config.matches, [v.image for v in self.scene.train], self.cameras, cache
-                )
-            finally:
-                torch.set_num_threads(prev_threads)
+            photos = [v.image for v in self.scene.train]
+            with torch_threads(self.config.threads):  # the run's count, as for its iterations
+                self.matches = run_matches(self.config.matches, photos, self.cameras, cache)
         self._setup_model(init_depth if init_depth is not None else priors)
         cfg, clock = self.config, self.clock
         self.densify: DensifyStrategy | None = None
@@ -508,19 +503,15 @@ class Trainer:
         evaluate, save."""
         cfg = self.config
         keep_freed_memory()  # reuse the step's large buffers (see engine/malloc.py)
-        prev_threads = torch.get_num_threads()
-        if cfg.threads:
-            torch.set_num_threads(cfg.threads)
         # After the thread count: the mode is per thread (see engine/denormals.py).
         fp_mode = flush_denormals() if self.device.type == "cpu" else nullcontext()
         try:
-            with fp_mode:
+            with torch_threads(cfg.threads), fp_mode:
                 return self._run()
         except (TrainingDiverged, ModelCollapsed) as exc:
             self._emit(StateChange("failed", self.iteration, str(exc)))
             raise
         finally:
-            torch.set_num_threads(prev_threads)
             release_cached_memory()  # the hash grid's gradient block (engine/color/build.py)
 
     def _run(self) -> TrainResult:
