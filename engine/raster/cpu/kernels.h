@@ -138,11 +138,18 @@ static inline vi operator<<(vi a, int s) { return vi{{a.h[0] << s, a.h[1] << s}}
 static inline vi operator<(vi a, vi b) { return vi{{a.h[0] < b.h[0], a.h[1] < b.h[1]}}; }
 static inline vi operator+(vi a, int32_t b) { return vi{{a.h[0] + b, a.h[1] + b}}; }
 
+// Selects by vblendvps, which reads each lane's sign bit: the masks here are all 0 / -1 lanes
+// (comparisons and their and / andnot). GCC's ?: on a mask vector tests it against zero first,
+// one more vpcmpeqd per half and select (seen in the forward's job loop).
+static inline hf blendv(hi m, hf a, hf b) {
+  return (hf)_mm256_blendv_ps((__m256)b, (__m256)a, (__m256)m);
+}
 static inline vf vsel(vi m, vf a, vf b) {
-  return vf{{m.h[0] ? a.h[0] : b.h[0], m.h[1] ? a.h[1] : b.h[1]}};
+  return vf{{blendv(m.h[0], a.h[0], b.h[0]), blendv(m.h[1], a.h[1], b.h[1])}};
 }
 static inline vi vseli(vi m, vi a, vi b) {
-  return vi{{m.h[0] ? a.h[0] : b.h[0], m.h[1] ? a.h[1] : b.h[1]}};
+  return vi{{(hi)blendv(m.h[0], (hf)a.h[0], (hf)b.h[0]),
+             (hi)blendv(m.h[1], (hf)a.h[1], (hf)b.h[1])}};
 }
 static inline vi to_int(vf x) {
   return vi{{__builtin_convertvector(x.h[0], hi), __builtin_convertvector(x.h[1], hi)}};
@@ -252,6 +259,33 @@ static inline vf m_mulz(vm m, vf a, vf b) {  // a * b where m is set, else 0
 }
 static inline vm m_of(vi m) { return _mm512_movepi32_mask((__m512i)m); }
 static inline vm m_lti(vi a, vi b) { return _mm512_cmplt_epi32_mask((__m512i)a, (__m512i)b); }
+static inline bool m_any(vm m) { return m != 0; }
+#elif !RASTER_PORTABLE
+// AVX2: masks as 0 / -1 vectors. and-not and the zeroing multiply by one instruction per half
+// (GCC spelled a & ~b as vpxor with all ones, then vpand), and "any lane set" by one vtestps on
+// the halves' union instead of two vmovmskps and their merge.
+typedef vi vm;
+static inline vm m_ge(vf a, float b) { return a >= b; }
+static inline vm m_le(vf a, float b) { return a <= b; }
+static inline vm m_and(vm a, vm b) { return a & b; }
+static inline vm m_andnot(vm a, vm b) {  // a and not b
+  return vm{{(hi)_mm256_andnot_ps((__m256)b.h[0], (__m256)a.h[0]),
+             (hi)_mm256_andnot_ps((__m256)b.h[1], (__m256)a.h[1])}};
+}
+static inline uint32_t m_bits(vm m) { return movemask(m); }
+static inline bool m_any(vm m) {
+  const __m256 u = _mm256_or_ps((__m256)m.h[0], (__m256)m.h[1]);
+  return !_mm256_testz_ps(u, u);
+}
+static inline vf m_sel(vm m, vf a, vf b) { return vsel(m, a, b); }
+static inline vi m_seli(vm m, vi a, vi b) { return vseli(m, a, b); }
+static inline vf m_mulz(vm m, vf a, vf b) {  // a * b where m is set, else 0
+  const vf p = a * b;
+  return vf{{(hf)_mm256_and_ps((__m256)m.h[0], (__m256)p.h[0]),
+             (hf)_mm256_and_ps((__m256)m.h[1], (__m256)p.h[1])}};
+}
+static inline vm m_of(vi m) { return m; }
+static inline vm m_lti(vi a, vi b) { return a < b; }
 #else
 typedef vi vm;
 static inline vm m_ge(vf a, float b) { return a >= b; }
@@ -259,6 +293,7 @@ static inline vm m_le(vf a, float b) { return a <= b; }
 static inline vm m_and(vm a, vm b) { return a & b; }
 static inline vm m_andnot(vm a, vm b) { return a & ~b; }
 static inline uint32_t m_bits(vm m) { return movemask(m); }
+static inline bool m_any(vm m) { return movemask(m) != 0; }
 static inline vf m_sel(vm m, vf a, vf b) { return vsel(m, a, b); }
 static inline vi m_seli(vm m, vi a, vi b) { return vseli(m, a, b); }
 static inline vf m_mulz(vm m, vf a, vf b) { return vsel(m, a * b, vf{}); }
@@ -276,8 +311,14 @@ static inline vm m_lti(vi a, vi b) { return a < b; }
 // so the polynomial is evaluated by Estrin's scheme (pairs, then the powers r^2 and r^4: a
 // chain of 4 operations instead of Horner's 7), and K > 1 exponentials are computed step by
 // step side by side, which keeps independent work next to each other in the instruction stream.
+//
+// always_inline: on AVX2 GCC's inliner judged the two-vector instance (vexp_neg_n<2>, twice as
+// many instructions as on AVX-512, each row operation being two ymm ones) too large and called
+// it out of line from the forward's job loop. The SysV ABI has every ymm register caller-saved,
+// so each call spilled the row's whole blend state (transmittance, live lanes, accumulators) to
+// the stack and passed the powers and results through memory, behind a vzeroupper.
 template <int K>
-static inline void vexp_neg_n(const vf* pin, vf* out) {
+__attribute__((always_inline)) static inline void vexp_neg_n(const vf* pin, vf* out) {
   vf p[K], nf[K], r[K];
 #if !RASTER_AVX512
   vi n[K];
@@ -313,7 +354,7 @@ static inline void vexp_neg_n(const vf* pin, vf* out) {
   }
 }
 
-static inline vf vexp_neg(vf p) {
+__attribute__((always_inline)) static inline vf vexp_neg(vf p) {
   vf e;
   vexp_neg_n<1>(&p, &e);
   return e;
@@ -398,8 +439,11 @@ constexpr int32_t kPrefetch = 8;
 // per-row loops below visit only rows that hit, without a data-dependent branch per row. dy
 // receives each row's offset from the centre, g.my - (y0 + r + 0.5). The cull keeps a margin
 // (GaussRec::two_a_t), so rounding here never drops a pixel that passes the alpha test. Rows
-// past the image's last are the caller's to mask (rows that cannot blend).
-static inline uint32_t row_hit_mask(const GaussRec& g, int y0, int x0, vf row_index, vf& dy) {
+// past the image's last are the caller's to mask (rows that cannot blend). Inlined by force, as
+// vexp_neg_n: the portable build called it out of line, its vectors passed through memory.
+__attribute__((always_inline)) static inline uint32_t row_hit_mask(const GaussRec& g, int y0,
+                                                                   int x0, vf row_index,
+                                                                   vf& dy) {
   dy = g.my - (row_index + ((float)y0 + 0.5f));
   const vf disc = g.two_a_t - g.det * dy * dy;
   const vf half = vsqrt(vmax(disc, vf{})) * g.inv_a;
@@ -501,8 +545,11 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
       vf acc_r[(CC >= 0 ? CC : 0) + 1];
       if constexpr (CC >= 0)
         for (int k = 0; k <= C; ++k) acc_r[k] = accv[k * TILE + r];
-      // Blends one job; true when it leaves every lane of the row stopped.
-      auto blend_one = [&](const BatchG& b, vf power, vf alpha) -> bool {
+      // Blends one job; true when it leaves every lane of the row stopped. Inlined by force: the
+      // portable build's vectors (four quarters) made GCC call it out of line, with the row's
+      // state passed through memory.
+      auto blend_one = [&](const BatchG& b, vf power,
+                           vf alpha) __attribute__((always_inline)) -> bool {
         const vm valid = m_and(m_and(act, m_ge(power, 0.f)), m_ge(alpha, kAlphaMin));
         const vf next_t = t_r * (1.f - alpha);
         const vm stop = m_and(valid, m_le(next_t, kMinTransmittance));
@@ -520,9 +567,9 @@ static void forward_tile_impl(const TileFwd& a, int tile_x, int tile_y, float* a
         }
         t_r = m_sel(blend, next_t, t_r);
         lst = m_seli(blend, splati(b.pos), lst);
-        if (m_bits(stop)) {
+        if (m_any(stop)) {
           act = m_andnot(act, stop);
-          if (!m_bits(act)) {
+          if (!m_any(act)) {
             live &= ~(1u << r);
             return true;
           }
