@@ -34,6 +34,8 @@ class RunMatches:
     """(N, 3) float32 triangulated points (N may be 0)."""
     colours: np.ndarray
     """(N, 3) float32 RGB in [0, 1] sampled from the photos."""
+    angles: np.ndarray
+    """(N,) float32 triangulation angle of each point (degrees): its depth's precision."""
     point: np.ndarray
     """(O,) int64 point index of each observation."""
     view: np.ndarray
@@ -58,6 +60,7 @@ def _none(seconds: float, method: str, why: str) -> RunMatches:
     return RunMatches(
         zeros,
         zeros.copy(),
+        np.zeros(0, np.float32),
         np.zeros(0, np.int64),
         np.zeros(0, np.int64),
         np.zeros((0, 2), np.float32),

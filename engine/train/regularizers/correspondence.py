@@ -9,10 +9,13 @@ triangulation already reconciled the photos, with its reprojection and angle fil
 view v and its observations (pixel p, point X):
 
     z = (R_v X + t_v)_z,   d(p) = depth(p) / alpha(p)   (the render's depth is alpha-blended)
-    loss_v = mean over p with alpha(p) >= min_alpha of  max(|d(p) / z - 1| - tolerance, 0)
+    loss_v = mean over p with alpha(p) >= min_alpha of  max(|d(p) / z - 1| - tol(p), 0)
 
 a relative error (the scene's unit cancels) with a dead zone for the triangulation's own
-uncertainty. It rides on the photometric render of the current view (``RasterOutput.depth``,
+uncertainty: tol(p) = max(tolerance, pixel_error / (f tan a)) for a point triangulated under
+the angle a, seen by a camera of focal length f (px). A point from a narrow baseline (a few
+degrees, as in a forward-facing capture) constrains the depth loosely, one from a wide one
+tightly. It rides on the photometric render of the current view (``RasterOutput.depth``,
 ``.alpha``), bilinearly sampled at the observations, so it costs a few thousand samples and
 their backward: no extra render. Its gradient reaches every parameter the render's depth and
 alpha depend on (centres, scales, rotations, opacities).
@@ -51,12 +54,13 @@ def matched_depth_loss(
     alpha: Tensor,
     xy: Tensor,
     target: Tensor,
-    tolerance: float,
+    tolerance: float | Tensor,
     min_alpha: float,
 ) -> Tensor | None:
     """The term for one view (module docstring): ``depth`` and ``alpha`` (H, W) or (1, H, W)
     from a render, ``xy`` (K, 2) observation pixels, ``target`` (K,) the points' camera-space
-    depths (all > 0). None where no observation has enough opacity."""
+    depths (all > 0), ``tolerance`` the dead zone (one value, or (K,) one per observation).
+    None where no observation has enough opacity."""
     h, w = depth.shape[-2:]
     stacked = torch.stack([depth.reshape(h, w), alpha.reshape(h, w)])
     d, a = sample_at(stacked, xy)
@@ -64,7 +68,8 @@ def matched_depth_loss(
     if not bool(use.any()):
         return None
     relative = (d[use] / a[use]) / target[use] - 1.0
-    return (relative.abs() - tolerance).clamp_min(0.0).mean()
+    dead = tolerance[use] if isinstance(tolerance, Tensor) else tolerance
+    return (relative.abs() - dead).clamp_min(0.0).mean()
 
 
 class CorrespondenceTerm:
@@ -88,6 +93,9 @@ class CorrespondenceTerm:
         """Per view, (K, 2) observation pixels."""
         self.target: list[Tensor] = []
         """Per view, (K,) the observed points' depths in that camera."""
+        self.tolerance: list[Tensor] = []
+        """Per view, (K,) each observation's dead zone (relative depth)."""
+        tan = torch.tan(torch.deg2rad(torch.from_numpy(matches.angles).double()))
         for v, cam in enumerate(cameras):
             rows = torch.from_numpy(matches.view == v)
             idx = torch.from_numpy(matches.point)[rows]
@@ -97,6 +105,8 @@ class CorrespondenceTerm:
             device = cam.world_to_camera.device
             self.xy.append(torch.from_numpy(matches.xy)[rows][front].float().to(device))
             self.target.append(z[front].float().to(device))
+            own = settings.pixel_error / (cam.fx * tan[idx][front]).clamp_min(1e-12)
+            self.tolerance.append(own.clamp_min(settings.tolerance).float().to(device))
 
     @property
     def observations(self) -> int:
@@ -112,7 +122,8 @@ class CorrespondenceTerm:
         target = self.target[view.index]
         if not len(target):
             return None
+        i = view.index
         loss = matched_depth_loss(
-            out.depth, out.alpha, self.xy[view.index], target, s.tolerance, s.min_alpha
+            out.depth, out.alpha, self.xy[i], target, self.tolerance[i], s.min_alpha
         )
         return None if loss is None else s.weight * loss

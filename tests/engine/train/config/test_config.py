@@ -27,6 +27,7 @@ _NEW_FIELDS = {
     *(f"matches.{name}" for name in ("method", "keypoints", "min_side", "max_error_px")),
     "matches.min_angle_deg",
     *(f"correspondence.{name}" for name in ("weight", "start", "until", "tolerance")),
+    "correspondence.pixel_error",
     "correspondence.min_alpha",
 }
 """Fields that did not exist in the flat versions (no flat name)."""

@@ -113,8 +113,11 @@ def test_pixels_without_opacity_are_skipped() -> None:
     assert float(loss) == pytest.approx(2.0 / 0.3 - 1.0, rel=1e-5)
 
 
-def _matches(cams: list[Camera], points: np.ndarray) -> RunMatches:
-    """Every point observed in every camera at its exact projection."""
+def _matches(
+    cams: list[Camera], points: np.ndarray, angles: np.ndarray | None = None
+) -> RunMatches:
+    """Every point observed in every camera at its exact projection; ``angles``: the points'
+    triangulation angles in degrees (default 90: the ``tolerance`` floor alone applies)."""
     point, view, xy = [], [], []
     for v, cam in enumerate(cams):
         w2c = cam.world_to_camera.double().numpy()
@@ -132,6 +135,7 @@ def _matches(cams: list[Camera], points: np.ndarray) -> RunMatches:
     return RunMatches(
         points.astype(np.float32),
         np.full((len(points), 3), 0.5, np.float32),
+        np.full(len(points), 90.0, np.float32) if angles is None else angles.astype(np.float32),
         np.concatenate(point).astype(np.int64),
         np.concatenate(view).astype(np.int64),
         np.concatenate(xy).astype(np.float32),
@@ -185,3 +189,17 @@ def test_the_schedule_and_views_without_observations_give_no_term() -> None:
     # The second point is at depth 4 and rendered at 5: 0.25 - 0.01, weighted 2, over 2 points.
     assert loss is not None and float(loss) == pytest.approx(2.0 * (0.24 / 2), rel=1e-5)
     assert term.extra_loss(15, out, TrainView(1, cam, torch.zeros(3, h, w))) is None
+
+
+def test_each_point_gets_the_dead_zone_of_its_triangulation_angle(seed: int) -> None:
+    """tol = max(tolerance, pixel_error / (f tan a)) per observation, against float64."""
+    rng = np.random.default_rng(seed)
+    cams = [camera((-0.3, 0.0, 0.0)).to("cpu", torch.float32)]
+    points = rng.uniform([-1, -1, 3], [1, 1, 7], size=(30, 3))
+    angles = np.concatenate([rng.uniform(0.5, 60.0, size=25), rng.uniform(80.0, 89.0, size=5)])
+    settings = CorrespondenceConfig(weight=1.0, tolerance=0.01, pixel_error=1.5)
+    term = CorrespondenceTerm(settings, _matches(cams, points, angles), cams, ScheduleClock(10))
+    a32 = angles.astype(np.float32).astype(np.float64)
+    want = np.maximum(0.01, 1.5 / (cams[0].fx * np.tan(np.radians(a32))))  # f = 40 px here
+    np.testing.assert_allclose(term.tolerance[0].numpy(), want, rtol=4 * U)
+    assert (want > 0.01).any() and (want == 0.01).any()  # both regimes are exercised
