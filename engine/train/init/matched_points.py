@@ -123,4 +123,6 @@ def run_matches(
             cfg.method, len(points.points), summary["matches"], seconds,
             " (cached)" if cached else "",
         )  # fmt: skip
-    return RunMatches(points.points, points.colours, obs.point, obs.view, obs.xy, seconds, summary)
+    return RunMatches(
+        points.points, points.colours, points.angles, obs.point, obs.view, obs.xy, seconds, summary
+    )
