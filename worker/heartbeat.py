@@ -76,7 +76,7 @@ class JobHeartbeat:
         self._total = total
         self._budget_s = budget_s
         if self.cancel_requested or self.lost or self.shutting_down:
-            trainer.stop_requested = True
+            self._request_stop()
 
     def request_shutdown(self) -> None:
         """Stop the trainer at the next iteration, keeping a checkpoint to resume from."""
@@ -152,7 +152,7 @@ class JobHeartbeat:
             self._last_iteration = progress.iteration
             self.store.add_event(self.job_id, "progress", progress.model_dump(mode="json"))
         if not ours and not self._stop.is_set():
-            self.lost = True
+            self.lost = True  # deleted, or taken by another worker: its files are not ours
             self._request_stop()
         if cancel and not self.cancel_requested:
             self.cancel_requested = True
@@ -173,4 +173,5 @@ class JobHeartbeat:
 
     def _request_stop(self) -> None:
         if self._trainer is not None:
+            self._trainer.discard_outputs = self.lost
             self._trainer.stop_requested = True

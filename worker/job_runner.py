@@ -133,7 +133,8 @@ def _train(
             )
             store.add_event(claim.job_id, "record", record.model_dump(mode="json"))
             beat.set_record(record)
-            _write_series(records, run_dir, f"job {claim.job_id}: held-out error")
+            if not beat.lost:  # deleted, or another worker's now: its folder is not ours
+                _write_series(records, run_dir, f"job {claim.job_id}: held-out error")
         elif isinstance(event, StateChange):
             beat.set_phase(event.state)
         return beat.cancel_requested

@@ -220,6 +220,10 @@ class Trainer:
         self.stop_requested = False
         """Set from another thread (a job's cancel or a time budget): the run stops after the
         current iteration, with a checkpoint, as if the progress callback had said stop."""
+        self.discard_outputs = False
+        """Set from another thread, with ``stop_requested``, when the run's files are no longer
+        its own to write (the job was deleted, or its lease passed to another worker): no
+        checkpoint or export is written from then on."""
         if resume_from is not None:
             state = load_checkpoint(resume_from)
             if state.get("model_only"):
@@ -544,7 +548,7 @@ class Trainer:
                 self._emit(StateChange("training", self.iteration))
             if rec.checkpoint_interval_s > 0 and since_ckpt >= rec.checkpoint_interval_s:
                 since_ckpt = 0.0
-                if self.out_dir is not None:
+                if self.out_dir is not None and not self.discard_outputs:
                     self._emit(StateChange("checkpointing", self.iteration))
                     self.save_checkpoint()
         if self.densify is not None:
@@ -576,7 +580,7 @@ class Trainer:
         if self.depth_agreement is not None:
             metrics["depth_agreement"] = json_safe(self.depth_agreement)
             metrics["depth_views"] = sorted(self.depth.views or []) if self.depth else []
-        if self.out_dir is not None:
+        if self.out_dir is not None and not self.discard_outputs:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._emit(StateChange("checkpointing", self.iteration))
             artifacts["checkpoint"] = self.save_checkpoint()

@@ -78,6 +78,22 @@ def test_smoke_loss_falls_and_heldout_improves(tmp_path: Path, seed: int) -> Non
     assert len(model) == result.n_gaussians
 
 
+def test_a_run_told_to_discard_its_outputs_stops_and_writes_nothing(tmp_path: Path) -> None:
+    """What a deleted job's worker does: the folder is gone and must stay gone."""
+    scene, priors = make_scene(seed=0)
+    out = tmp_path / "run"
+    trainer = Trainer(scene, small(eval_every=5, export=True), priors, out)
+
+    def deleted_at_5(event: Any) -> None:
+        if isinstance(event, ProgressRecord) and event.iteration >= 5:
+            trainer.discard_outputs = trainer.stop_requested = True
+
+    trainer.on_progress = deleted_at_5
+    result = trainer.run()
+    assert result.stopped and result.artifacts == {} and result.iteration < 40
+    assert not (out / "checkpoint.pt").exists() and not (out / "metrics.json").exists()
+
+
 RESUME_PARTS: dict[str, dict[str, Any]] = {
     "default": {},
     # Parts with random draws or state must replay after a resume too.
