@@ -18,6 +18,7 @@ state (``parts.py`` says what a part is). In this folder:
 - :class:`DivergenceGuard` (``guard.py``): finite, magnitude and step-size checks;
 - :class:`Recorder` (``recorder.py``): evaluation, the error-vs-time series, exports (through
   the model package, ``engine/model/``);
+- the run's data on its device, prepared once (``data.py``): targets, cameras, box, extent;
 - the optimizer and its LR schedule (``optimizer.py``, ``schedule.py``), the checkpoint state
   (``state.py``), the result (``result.py``).
 
@@ -51,12 +52,10 @@ from torch import Tensor
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.models import ColorModel
-from sparsesplat.engine.datasets.common import with_background
 from sparsesplat.engine.denormals import flush_denormals
 from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import (
-    SSIMTarget,
     opacity_regularizer,
     photometric_loss,
     scale_regularizer,
@@ -69,7 +68,6 @@ from sparsesplat.engine.model.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from sparsesplat.engine.model.raster import bind_raster
 from sparsesplat.engine.model.render import render_view, view_colors
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.scene import Scene
@@ -78,7 +76,7 @@ from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.init.initial_points import initial_points, with_matched
 from sparsesplat.engine.train.init.matched_points import RunMatches, run_matches
 from sparsesplat.engine.train.init.model import initial_model
-from sparsesplat.engine.train.init.random_init import frusta_box
+from sparsesplat.engine.train.loop.data import run_data
 from sparsesplat.engine.train.loop.densify import DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.loop.guard import DivergenceGuard
 from sparsesplat.engine.train.loop.optimizer import make_optimizer, set_position_lr
@@ -235,34 +233,11 @@ class Trainer:
 
     # -- setup -----------------------------------------------------------------------------
     def _setup_data(self) -> None:
-        cfg, dev = self.config, self.device
-        bg = cfg.background if cfg.background is not None else self.scene.background
-        # One background for targets and renders: images with alpha are re-composited on it.
-        self.scene = with_background(self.scene, torch.as_tensor(bg, dtype=torch.float32))
-        self.background = self.scene.background.float().reshape(3).to(dev)
-        self.cameras = [v.camera.to(dev, torch.float32) for v in self.scene.train]
-        self.images = [
-            v.image.permute(2, 0, 1).contiguous().float().to(dev) for v in self.scene.train
-        ]
-        # The targets' SSIM statistics are fixed: computed once, not every iteration.
-        self.ssim_targets = [SSIMTarget(img) for img in self.images]
-        centers = torch.stack([c.center.float() for c in self.cameras])
-        radius = float((centers - centers.mean(dim=0)).norm(dim=1).max()) * 1.1
-        if cfg.init.box is not None:
-            lo, hi = (torch.tensor(c, dtype=torch.float32) for c in cfg.init.box)
-        elif self.scene.init_box is not None:
-            lo, hi = (torch.tensor(c, dtype=torch.float32) for c in self.scene.init_box)
-        else:
-            lo, hi = frusta_box(self.scene)
-        self.box = (lo.cpu(), hi.cpu())
-        if radius <= 0:  # a single view (or coincident cameras): fall back to the box size
-            radius = float((hi - lo).max()) * 0.5
-        self.extent = radius
-        """Scene extent (1.1 x max train-camera distance from their mean), scales LRs."""
-        near = cfg.raster.near if cfg.raster.near is not None else 0.2 * self.scene.near
-        self.raster_near = near if near > 0 else 0.01
-        """View-z culling distance used by every render of this run."""
-        self._raster = bind_raster(self.raster_near, cfg.raster.eps2d, cfg.raster.backend)
+        data = run_data(self.scene, self.config, self.device)
+        self.scene, self.background = data.scene, data.background
+        self.cameras, self.images, self.ssim_targets = data.cameras, data.images, data.ssim_targets
+        self.box, self.extent, self.raster_near = data.box, data.extent, data.raster_near
+        self._raster = data.raster
         """The run's rasterizer (the parts, the evaluation and :meth:`render` share it)."""
 
     def _depth_views(self, priors: list[Any] | None) -> set[int] | None:
