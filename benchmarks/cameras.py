@@ -119,9 +119,7 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
     import torch
 
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.priors import compute_priors
-    from sparsesplat.engine.train import Trainer
-    from sparsesplat.engine.train.run import RunSpec, plan_run
+    from sparsesplat.engine.train.run import RunSpec, build_run
 
     torch.set_num_threads(threads)
     rows = []
@@ -132,9 +130,7 @@ def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[s
             name = {"llff": "llff", "dtu": "dtu", "blender": "blender"}.get(scene.format, "llff")
             # The one run recipe (the CLI's and the service's), with the preset named.
             spec = RunSpec(name, {"seed": 0, "threads": threads}, iterations)
-            config = plan_run(spec, scene).config
-            priors = compute_priors(scene, config.depth.prior) if config.depth.used else None
-            result = Trainer(scene, config, priors, Path(tmp) / cameras).run()
+            result = build_run(spec, scene, out_dir=Path(tmp) / cameras).trainer.run()
             metrics = result.metrics
             row = {"cameras": cameras, "preset": name, "iterations": iterations,
                    "test_views": len(scene.test), "seconds": result.seconds,

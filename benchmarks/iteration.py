@@ -65,17 +65,21 @@ def measure(
     ``llff`` preset, with dotted-field ``overrides`` (``--set``) on top."""
     from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.synthetic import make_scene
-    from sparsesplat.engine.train import Trainer, preset
+    from sparsesplat.engine.train.run import RunSpec, build_run
 
     keep_freed_memory()  # as Trainer.run does
     scene, priors = make_scene(seed=0, width=width, height=height, n_gaussians=400)
     # The random box whatever the preset's init: the workload every figure of this bench was
-    # taken on (a dense init puts the points on the surface, with smaller footprints).
-    cfg = preset(
-        "llff", init="random", init_points=n, profile=True, export=False, eval_interval_s=0,
-        densify_until=0, clean_iterations=(), iterations=10_000, **(overrides or {}),
+    # taken on (a dense init puts the points on the surface, with smaller footprints). Naming
+    # the init keeps the preset's base recipe whatever the synthetic cameras' layout.
+    spec = RunSpec(
+        "llff",
+        {"init": "random", "init_points": n, "profile": True, "export": False,
+         "eval_interval_s": 0, "densify_until": 0, "clean_iterations": (), **(overrides or {})},
+        iterations=10_000,
     )  # fmt: skip
-    t = Trainer(scene, cfg, priors)
+    # The synthetic scene's exact depths are the priors, whatever the config's prior kind.
+    t = build_run(spec, scene, prior_source=lambda _scene, _kind: priors).trainer
     t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
     return _time_steps(t, iterations)
 

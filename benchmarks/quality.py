@@ -156,33 +156,46 @@ def variant_overrides(variant: str) -> dict[str, Any]:
     )
 
 
-def variant_config(
-    name: str,
-    variant: str,
-    seed: int = 0,
-    iterations: int | None = None,
-    layout: str | None = None,
+def variant_spec(
+    name: str, variant: str, seed: int = 0, iterations: int | None = None, **extra: Any
 ) -> Any:
-    """The config of ``variant`` of preset ``name`` (validated), trained ``iterations``
-    iterations (default: the preset's run length), with the preset's recipe for the training
-    cameras' ``layout`` as ``sparsesplat train`` gives it (``run.training_layout``).
+    """The run recipe's :class:`RunSpec` of ``variant`` of preset ``name``, trained
+    ``iterations`` iterations (default: the preset's run length), with ``extra`` overrides
+    (the sweep's record settings) on top.
 
     ``iters:N`` is the preset's reference schedule compressed to N iterations, e.g.
     ``iters:2000`` (it takes precedence over ``iterations``); any other variant is a set of
-    field overrides (:func:`variant_overrides`)."""
-    from sparsesplat.engine.train import preset
+    field overrides (:func:`variant_overrides`; ``set:iterations=N`` means ``iters:N``)."""
+    from sparsesplat.engine.train.run import RunSpec
 
     kind, _, count = variant.partition(":")
+    overrides: dict[str, Any] = {}
     if kind == "iters":
         try:
             iterations = int(count)
         except ValueError:
             raise SystemExit(f"bench-quality: variant {variant!r}: expected iters:N") from None
-        return preset(name, iterations=iterations, layout=layout, seed=seed)
-    overrides = variant_overrides(variant)
-    if "iterations" in overrides:  # set:iterations=N means iters:N
-        iterations = overrides.pop("iterations")
-    return preset(name, iterations=iterations, layout=layout, seed=seed, **overrides)
+    else:
+        overrides = variant_overrides(variant)
+        if "iterations" in overrides:  # the recipe reads it as the run length
+            iterations = overrides.pop("iterations")
+    return RunSpec(name, {"seed": seed, **overrides, **extra}, iterations)
+
+
+def variant_config(
+    name: str,
+    variant: str,
+    seed: int = 0,
+    iterations: int | None = None,
+    scene: Any = None,
+    **extra: Any,
+) -> Any:
+    """The config (validated) the run recipe gives :func:`variant_spec` on ``scene``: with the
+    preset's recipe for the training cameras' layout, as ``sparsesplat train`` gives it (None:
+    no scene, no layout recipe)."""
+    from sparsesplat.engine.train.run import plan_run
+
+    return plan_run(variant_spec(name, variant, seed, iterations, **extra), scene).config
 
 
 def _entry_key(row: dict[str, Any]) -> tuple[Any, ...]:
@@ -277,15 +290,17 @@ def run_entry(
     scene_path: Path,
     scene: Any,
     variant: str,
-    config: Any,
+    spec: Any,
     priors: _PriorCache,
     out_dir: Path,
     device: str,
 ) -> dict[str, Any]:
-    """Train one (scene, variant) and return its table row (``error`` set on a failed run)."""
+    """Train one (scene, variant) of the run recipe's ``spec`` and return its table row
+    (``error`` set on a failed run)."""
     from sparsesplat.engine.errors import EngineError
-    from sparsesplat.engine.train import Trainer
+    from sparsesplat.engine.train.run import build_run, plan_run
 
+    config = plan_run(spec, scene).config
     row: dict[str, Any] = {
         "scene": scene.name,
         "path": str(scene_path),
@@ -298,12 +313,18 @@ def run_entry(
     }
     t0 = time.perf_counter()
     try:
-        depth = priors.get(scene_path, scene, config.depth.prior) if config.uses_depth else None
         # Dense init always back-projects the plane sweep here (what the trainer does for a
         # monocular prior), so a metric prior:user variant changes the depth passes only.
         dense = config.init.method == "dense"
         init_depth = priors.get(scene_path, scene, "plane_sweep") if dense else None
-        result = Trainer(scene, config, depth, out_dir, device=device, init_depth=init_depth).run()
+        result = build_run(
+            spec,
+            scene,
+            out_dir=out_dir,
+            device=device,
+            prior_source=lambda scene, kind: priors.get(scene_path, scene, kind),
+            init_depth=init_depth,
+        ).trainer.run()
     except EngineError as exc:  # one failed entry must not end a sweep of hours
         row.update(error=f"{type(exc).__name__}: {exc}", wall_s=time.perf_counter() - t0)
         return row
@@ -399,8 +420,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.train.config.overrides import apply_overrides
-    from sparsesplat.engine.train.run import training_layout
+    from sparsesplat.engine.train.run import plan_run
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -432,16 +452,13 @@ def run(args: argparse.Namespace) -> int:
             preset_name = PRESET_OF_FORMAT.get(scene.format, "default")
             trained: dict[str, dict[str, Any]] = {}  # effective config (JSON) -> its row
             for variant in variants:
-                config = apply_overrides(
-                    variant_config(
-                        preset_name, variant, seed, args.iterations, training_layout(scene)
-                    ),
-                    {
-                        "record.eval_max_views": args.eval_max_views,
-                        "record.export": not args.no_export,
-                        "record.checkpoint_interval_s": 0.0,
-                    },
-                )
+                spec = variant_spec(
+                    preset_name, variant, seed, args.iterations,
+                    **{"record.eval_max_views": args.eval_max_views,
+                       "record.export": not args.no_export,
+                       "record.checkpoint_interval_s": 0.0},
+                )  # fmt: skip
+                config = plan_run(spec, scene).config
                 key = (scene.name, variant, len(scene.train), config.iterations, seed)
                 if key in done:
                     print(f"[skip] {scene.name} {variant} seed {seed}: already in {out}")
@@ -459,7 +476,7 @@ def run(args: argparse.Namespace) -> int:
                         scene_path,
                         scene,
                         variant,
-                        config,
+                        spec,
                         priors,
                         runs_dir / scene.name / f"{run_name}_seed{seed}",
                         args.device,

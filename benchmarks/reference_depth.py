@@ -127,21 +127,20 @@ def measure_scene(
     from sparsesplat.engine.priors import compute_priors
     from sparsesplat.engine.priors.base import PriorDepth
     from sparsesplat.engine.priors.compare import prior_agreement
-    from sparsesplat.engine.train import Trainer, preset
+    from sparsesplat.engine.train.run import RunSpec, build_run
 
     sparse, dense = all_view_scene(path)
-    config = preset(
+    # The random init named: the all-view camera set's layout recipe does not apply (the
+    # reference model is the preset's base recipe without depth, on every protocol view).
+    spec = RunSpec(
         PRESET_OF_FORMAT.get(sparse.format, "default"),
-        iterations=iterations,
-        seed=seed,
-        depth_prior="none",
-        init="random",
-        export=False,
-        checkpoint_interval_s=0.0,
-    )
+        {"seed": seed, "depth_prior": "none", "init": "random", "export": False,
+         "checkpoint_interval_s": 0.0},
+        iterations,
+    )  # fmt: skip
     scene_dir = out_dir / sparse.name
     t0 = time.perf_counter()
-    trainer = Trainer(dense, config, None, scene_dir / "run")
+    trainer = build_run(spec, dense, out_dir=scene_dir / "run").trainer
     result = trainer.run()
     seconds = time.perf_counter() - t0
     depths = reference_depths(trainer, sparse.train)

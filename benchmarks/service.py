@@ -68,8 +68,7 @@ def _prepare(
     a synthetic scene started from that many points, no densification), stored as the service
     stores models (checkpoint and exports)."""
     from sparsesplat.engine.synthetic import make_scene
-    from sparsesplat.engine.train import Trainer, preset
-    from sparsesplat.engine.train.config.overrides import apply_overrides
+    from sparsesplat.engine.train.run import RunSpec, build_run
 
     scene, _ = make_scene(seed=0, width=WIDTH, height=HEIGHT, n_train=3, n_test=2,
                           n_gaussians=400)  # fmt: skip
@@ -78,11 +77,17 @@ def _prepare(
     store, storage = JobStore(engine), Storage(data_dir)
     job_id = new_job_id()
     frames = _write_upload(storage.upload_dir(job_id), scene)
-    config = apply_overrides(
-        preset("default", depth_prior="none", init_points=n_gaussians, eval_lpips=False),
-        {"iterations": iterations, "densify.until": 0},
-    )
-    trained = Trainer(scene, config, None, storage.run_dir(job_id)).run()
+    # The run recipe's ``default`` preset trained ``iterations`` iterations (its schedule
+    # compressed to them, as ``sparsesplat train --iterations`` does). The init named (the
+    # preset's own ``auto``) keeps the forward-facing layout recipe, whose 8000-point start and
+    # size cap would override ``n_gaussians``, from applying: the model's size is the bench's.
+    spec = RunSpec(
+        "default",
+        {"init": "auto", "depth_prior": "none", "init_points": n_gaussians,
+         "eval_lpips": False, "densify.until": 0},
+        iterations,
+    )  # fmt: skip
+    trained = build_run(spec, scene, out_dir=storage.run_dir(job_id)).trainer.run()
     print(f"# trained {iterations} iterations: {trained.n_gaussians} Gaussians", flush=True)
     store.create(job_id, "anonymous", JobSpec(), 3, 2)
     claim = store.claim("bench", 60)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,25 +121,31 @@ def build_run(
     on_plan: Callable[[RunPlan], None] | None = None,
     on_priors: Callable[[list[Any]], None] | None = None,
     time_source: Callable[[], float] = time.perf_counter,
+    prior_source: Callable[[Scene, str], Sequence[Any]] | None = None,
+    init_depth: list[Any] | None = None,
 ) -> PreparedRun:
     """Plan ``spec`` on ``scene``, compute its depth priors and build the trainer.
 
     ``on_plan``: called with the plan before the priors are computed (to announce the preset,
-    load native code); ``on_priors``: called with the priors once computed. The other
-    arguments go to :func:`compute_priors` and :class:`Trainer`."""
+    load native code); ``on_priors``: called with the priors once computed. ``prior_source``:
+    where the priors of a kind come from in place of :func:`compute_priors` (a benchmark's
+    per-process cache, a synthetic scene's exact depths); it is asked only when the config
+    uses depth. The other arguments go to :func:`compute_priors` and :class:`Trainer`."""
     plan = plan_run(spec, scene)
     if on_plan is not None:
         on_plan(plan)
     config = plan.config
     priors: list[Any] | None = None
     if config.uses_depth:
-        from sparsesplat.engine.priors import compute_priors
+        kind = config.depth.prior
+        if prior_source is not None:
+            priors = list(prior_source(scene, kind))
+        else:
+            from sparsesplat.engine.priors import compute_priors
 
-        priors = list(
-            compute_priors(
-                scene, config.depth.prior, cache_dir=prior_cache_dir, models_dir=models_dir
+            priors = list(
+                compute_priors(scene, kind, cache_dir=prior_cache_dir, models_dir=models_dir)
             )
-        )
         if on_priors is not None:
             on_priors(priors)
     trainer = Trainer(
@@ -150,6 +156,7 @@ def build_run(
         on_progress,
         device,
         resume_from,
+        init_depth,
         time_source=time_source,
     )
     return PreparedRun(trainer, plan, priors)

@@ -14,6 +14,7 @@ import sparsesplat.engine.datasets as datasets
 from benchmarks import quality
 from sparsesplat.engine.synthetic import make_cameras
 from sparsesplat.engine.train import preset
+from sparsesplat.engine.train.run import plan_run
 
 
 def _make_scenes(root: Path) -> None:
@@ -53,8 +54,9 @@ def test_resume_skips_finished_and_reuses_identical_configs(
         train = [SimpleNamespace(camera=c) for c in make_cameras(3, 8, 6)]
         return SimpleNamespace(name=path.name, format=fmt, train=train)
 
-    def fake_entry(scene_path: Path, scene: Any, variant: str, config: Any, *rest: Any) -> dict:
+    def fake_entry(scene_path: Path, scene: Any, variant: str, spec: Any, *rest: Any) -> dict:
         calls.append((scene.name, variant))
+        config = plan_run(spec, scene).config  # the run recipe's config, as run_entry trains
         row = {"scene": scene.name, "variant": variant, "views": 3}
         row |= {"iterations": config.iterations, "psnr": 20.0, "prior": config.depth.prior}
         if scene.name == "b" and variant == "no_depth":
