@@ -533,6 +533,27 @@ class Intrinsics(StrictModel):
         return cls(fx, fy, width / 2, height / 2, int(width), int(height))
 
     @classmethod
+    def centred(
+        cls,
+        fx: float,
+        width: int,
+        height: int,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+    ) -> Intrinsics:
+        """The lens of ``width`` x ``height`` images with what is not given by default:
+        ``fy`` equal to ``fx`` (square pixels), ``cx, cy`` at the image centre."""
+        return cls(
+            fx,
+            fx if fy is None else fy,
+            width / 2 if cx is None else cx,
+            height / 2 if cy is None else cy,
+            width,
+            height,
+        )
+
+    @classmethod
     def of(cls, camera: PinholeCamera) -> Intrinsics:
         """The intrinsics (and size) of ``camera``."""
         return cls(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)

@@ -156,3 +156,30 @@ def write_results(name: str, rows: list[dict[str, Any]], columns: list[str]) -> 
     path.write_text(json.dumps(payload, indent=2) + "\n")
     print(f"# wrote {path}")
     return path
+
+
+class RowLog:
+    """A JSON-lines results file a long benchmark appends to row by row (a run stopped midway
+    keeps what it measured), each row also printed as a table line as it comes."""
+
+    def __init__(self, path: Path, header: dict[str, Any], columns: list[str]) -> None:
+        """Open ``path`` for appending and write ``header`` (the machine, the settings) first."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self.columns = columns
+        self.rows: list[dict[str, Any]] = []
+        self._sink = path.open("a")
+        self._sink.write(json.dumps(header, default=str) + "\n")
+
+    def add(self, row: dict[str, Any]) -> None:
+        """Append ``row`` to the file (flushed) and print it as one table line."""
+        self.rows.append(row)
+        self._sink.write(json.dumps(row) + "\n")
+        self._sink.flush()
+        print(format_table([row], self.columns).splitlines()[1], flush=True)
+
+    def close(self) -> None:
+        """Close the file and print every row as one table, with where they were written."""
+        self._sink.close()
+        print(format_table(self.rows, self.columns))
+        print(f"written: {self.path}")

@@ -20,17 +20,16 @@ reprojection error and triangulation angle, and against the dataset:
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.common import format_table, machine_info, results_dir
+from benchmarks.common import RowLog, machine_info, results_dir
 from benchmarks.matchers import (
-    DEFAULT_SCENES,
     SCENES,
+    add_match_arguments,
     load_views,
     parse_method,
     report,
@@ -146,18 +145,12 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from sparsesplat.engine.match import TriangulationSettings
-    from sparsesplat.engine.match.settings import METHODS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=None, help="shared data root")
-    parser.add_argument("--scenes", nargs="*", default=DEFAULT_SCENES, choices=list(SCENES))
-    parser.add_argument("--methods", nargs="*", default=[*METHODS, "sift"])
+    add_match_arguments(parser)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--max-error", type=float, default=2.0, help="pixels")
     parser.add_argument("--min-angle", type=float, default=1.0, help="degrees")
-    parser.add_argument("--object-masks", action="store_true", help="DTU: match on the object")
-    parser.add_argument("--out", type=Path, default=None, help="JSON lines file")
-    parser.add_argument("--report", type=Path, nargs="*", help="print results as markdown")
     args = parser.parse_args(argv)
     if args.report:
         print(report(args.report, COLUMNS))
@@ -167,21 +160,11 @@ def main(argv: list[str] | None = None) -> int:
     cache = results_dir() / "match-cache"
     settings = TriangulationSettings(max_error_px=args.max_error, min_angle_deg=args.min_angle)
     out = args.out or results_dir() / "matched-start.jsonl"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rows = []
-    with out.open("a") as sink:
-        sink.write(json.dumps({"machine": machine_info(), "settings": vars(args)}, default=str))
-        sink.write("\n")
-        for name in args.scenes:
-            for method in args.methods:
-                row = measure(name, root / SCENES[name], method, cache, settings,
-                              args.object_masks)  # fmt: skip
-                rows.append(row)
-                sink.write(json.dumps(row) + "\n")
-                sink.flush()
-                print(format_table([row], COLUMNS).splitlines()[1], flush=True)
-    print(format_table(rows, COLUMNS))
-    print(f"written: {out}")
+    log = RowLog(out, {"machine": machine_info(), "settings": vars(args)}, COLUMNS)
+    for name in args.scenes:
+        for method in args.methods:
+            log.add(measure(name, root / SCENES[name], method, cache, settings, args.object_masks))
+    log.close()
     return 0
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from benchmarks.common import (
     SHARED_SCENES,
-    format_table,
+    RowLog,
     machine_info,
     results_dir,
 )
@@ -230,40 +230,38 @@ def report(paths: list[Path], columns: list[str]) -> str:
     return markdown(rows, columns)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Measure every scene x matcher x thread count; print a table, write JSON lines."""
+def add_match_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options the match benches share: which scenes and matchers, DTU's object masks, the
+    JSON-lines file, and ``--report`` (print earlier results instead of measuring)."""
     from sparsesplat.engine.match.settings import METHODS
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=None, help="shared data root")
     parser.add_argument("--scenes", nargs="*", default=DEFAULT_SCENES, choices=list(SCENES))
     parser.add_argument("--methods", nargs="*", default=[*METHODS, "sift"])
-    parser.add_argument("--threads", nargs="*", type=int, default=[1, 2])
-    parser.add_argument("--px", type=float, default=2.0, help="epipolar distance (pixels)")
     parser.add_argument("--object-masks", action="store_true", help="DTU: match on the object")
     parser.add_argument("--out", type=Path, default=None, help="JSON lines file")
     parser.add_argument("--report", type=Path, nargs="*", help="print results as markdown")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure every scene x matcher x thread count; print a table, write JSON lines."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_match_arguments(parser)
+    parser.add_argument("--threads", nargs="*", type=int, default=[1, 2])
+    parser.add_argument("--px", type=float, default=2.0, help="epipolar distance (pixels)")
     args = parser.parse_args(argv)
     if args.report:
         print(report(args.report, COLUMNS))
         return 0
     root = args.data or default_data_root()
     out = args.out or results_dir() / "matchers.jsonl"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rows = []
-    with out.open("a") as sink:
-        sink.write(json.dumps({"machine": machine_info()}) + "\n")
-        for threads in args.threads:
-            for name in args.scenes:
-                for method in args.methods:
-                    row = measure(name, root / SCENES[name], method, threads, args.px,
-                                  args.object_masks)  # fmt: skip
-                    rows.append(row)
-                    sink.write(json.dumps(row) + "\n")
-                    sink.flush()
-                    print(format_table([row], COLUMNS).splitlines()[1], flush=True)
-    print(format_table(rows, COLUMNS))
-    print(f"written: {out}")
+    log = RowLog(out, {"machine": machine_info()}, COLUMNS)
+    for threads in args.threads:
+        for name in args.scenes:
+            for method in args.methods:
+                log.add(measure(name, root / SCENES[name], method, threads, args.px,
+                                args.object_masks))  # fmt: skip
+    log.close()
     return 0
 
 

@@ -157,14 +157,7 @@ def from_matrix(
     if intrinsics is None:
         if fx is None or width is None or height is None:
             raise InvalidInput("give 'intrinsics' or at least fx, width and height")
-        intrinsics = Intrinsics(
-            fx,
-            fx if fy is None else fy,
-            width / 2 if cx is None else cx,
-            height / 2 if cy is None else cy,
-            width,
-            height,
-        )
+        intrinsics = Intrinsics.centred(fx, width, height, fy, cx, cy)
     return PinholeCamera(
         convention=AxisConvention(convention),
         pose=PoseDirection(pose),

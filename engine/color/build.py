@@ -61,11 +61,6 @@ def load_extension_or_none() -> ModuleType | None:
     return _EXTENSION.load_or_none()
 
 
-def native_available() -> bool:
-    """Whether the extension is (or can be) built here (see :func:`load_extension_or_none`)."""
-    return load_extension_or_none() is not None
-
-
 def release_cached_memory() -> int:
     """Unmap the table-gradient block the hash grid keeps for its next backward and return its
     bytes (0 when none is kept or the extension was never loaded in this process): called when

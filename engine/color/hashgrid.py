@@ -172,9 +172,9 @@ class HashGrid(nn.Module):
             )
         if suited and backend == "auto":
             # Where the kernels cannot be built: the torch implementation (one warning).
-            from sparsesplat.engine.color.build import native_available
+            from sparsesplat.engine.color.build import load_extension_or_none
 
-            return native_available()
+            return load_extension_or_none() is not None
         return suited
 
     def forward(self, x: Tensor) -> Tensor:

@@ -45,8 +45,3 @@ def load_extension_or_none() -> ModuleType | None:
     """The extension, or None where it cannot be built (one warning says the torch
     implementations run instead, the first time; the build is not tried again)."""
     return _EXTENSION.load_or_none()
-
-
-def native_available() -> bool:
-    """Whether the extension is (or can be) built here (see :func:`load_extension_or_none`)."""
-    return load_extension_or_none() is not None

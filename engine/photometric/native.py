@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from sparsesplat.engine.photometric.build import load_extension, native_available
+from sparsesplat.engine.photometric.build import load_extension, load_extension_or_none
 
 BACKENDS = ("auto", "native", "torch")
 """Accepted values of $SPARSESPLAT_PHOTOMETRIC ('auto' when unset: native where suited)."""
@@ -37,7 +37,7 @@ def _native_if_built(choice: str, suited: bool) -> bool:
     """Suited inputs run natively, unless ``auto`` finds the extension cannot be built on this
     machine: then the torch implementation (one warning, the first time). ``native`` insists
     (a failed build raises)."""
-    return suited and (choice == "native" or native_available())
+    return suited and (choice == "native" or load_extension_or_none() is not None)
 
 
 def _suited(pred: Tensor, others: tuple[Tensor, ...]) -> bool:

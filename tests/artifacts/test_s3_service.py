@@ -18,7 +18,7 @@ import pytest
 
 from tests.artifacts.moto_s3 import MotoS3
 from tests.service.disk import renders
-from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, wait_state
+from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, wait_progress, wait_state
 from tests.service.scenes import MIC, write_mic_upload
 
 pytestmark = pytest.mark.shared_data
@@ -80,17 +80,6 @@ def _frame_bytes(upload: Path, index: int) -> bytes:
     return (upload / frames[index]["image"]).read_bytes()
 
 
-def _wait_iteration(url: str, job_id: str, iteration: int, timeout: float = 240) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
-        if (job.get("progress") or {}).get("iteration", 0) >= iteration:
-            return
-        assert job["state"] not in TERMINAL, job
-        time.sleep(0.2)
-    raise TimeoutError(f"job {job_id} did not reach iteration {iteration}")
-
-
 def test_api_restarted_on_an_empty_disk_mid_job_loses_nothing(
     machines: Machines, s3: MotoS3, bucket: str, mic_upload: Path
 ) -> None:
@@ -100,7 +89,7 @@ def test_api_restarted_on_an_empty_disk_mid_job_loses_nothing(
     prefix = f"deploy/jobs/{job['id']}/"
     uploaded = s3.objects(bucket, prefix + "upload/")
     assert prefix + "upload/cameras.json" in uploaded and len(uploaded) == 1 + 5, uploaded
-    _wait_iteration(api.url, job["id"], 10)
+    wait_progress(api.url, job["id"], 10)
 
     api.kill_api()
     shutil.rmtree(api.data_dir / "jobs")  # the API's machine comes back with nothing on disk

@@ -23,7 +23,7 @@ from sparsesplat.api.store.database import make_engine
 from tests.distributed.conftest import celery_env
 from tests.distributed.servers import PostgresServer, RedisServer
 from tests.service import live as service_live
-from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, wait_state
+from tests.service.live import FAST_SPEC, TERMINAL, LiveService, submit, wait_progress, wait_state
 
 pytestmark = pytest.mark.shared_data
 
@@ -93,17 +93,6 @@ def _states(url: str, job_id: str) -> list[str]:
     return [e["data"]["state"] for e in events if e["type"] == "state"]
 
 
-def _wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
-        if (job.get("progress") or {}).get("iteration", 0) >= iteration:
-            return
-        assert job["state"] not in TERMINAL, job
-        time.sleep(0.2)
-    raise TimeoutError(f"job {job_id} did not reach iteration {iteration}")
-
-
 def test_two_jobs_run_at_the_same_time_in_two_worker_processes(
     cluster: Cluster, mic_upload: Path
 ) -> None:
@@ -134,7 +123,7 @@ def test_killed_worker_process_job_is_redelivered_and_resumes_from_its_checkpoin
     cluster.wait_idle_workers()
     job = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 100})
     checkpoint = cluster.live.data_dir / "jobs" / job["id"] / "run" / "checkpoint.pt"
-    _wait_progress(cluster.url, job["id"], 20)
+    wait_progress(cluster.url, job["id"], 20)
     deadline = time.monotonic() + 60
     while not checkpoint.exists():
         assert time.monotonic() < deadline, "no checkpoint was written"
@@ -154,7 +143,7 @@ def test_stopped_worker_node_hands_its_job_back_and_another_resumes_it(
 ) -> None:
     cluster.wait_idle_workers()
     job = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 100})
-    _wait_progress(cluster.url, job["id"], 20)
+    wait_progress(cluster.url, job["id"], 20)
     child = cluster.pid_of(job["id"])
     node = int(Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[1])
     os.kill(node, signal.SIGTERM)  # warm shutdown of the Celery node (docker stop, Ctrl-C)
@@ -205,7 +194,7 @@ def test_postgresql_restarted_api_answers_503_meanwhile_and_recovers(
 ) -> None:
     cluster.wait_idle_workers()
     running = submit(cluster.url, mic_upload, {**FAST_SPEC, "iterations": 120})
-    _wait_progress(cluster.url, running["id"], 10)
+    wait_progress(cluster.url, running["id"], 10)
 
     postgres.stop()
     try:

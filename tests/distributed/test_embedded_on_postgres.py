@@ -12,8 +12,15 @@ import httpx
 import pytest
 
 from tests.distributed.servers import PostgresServer
-from tests.distributed.test_celery_failures import _wait_progress
-from tests.service.live import FAST_SPEC, TERMINAL, LiveService, job_events, submit, wait_state
+from tests.service.live import (
+    FAST_SPEC,
+    TERMINAL,
+    LiveService,
+    job_events,
+    submit,
+    wait_progress,
+    wait_state,
+)
 
 pytestmark = pytest.mark.shared_data
 
@@ -36,7 +43,7 @@ def test_postgresql_restart_mid_job_pauses_the_job_instead_of_failing_it(
         live.wait_ready(timeout=420)
         spec = {**FAST_SPEC, "iterations": 600, "record_interval_s": 0.3}
         job = submit(live.url, mic_upload, spec)
-        _wait_progress(live.url, job["id"], 10)
+        wait_progress(live.url, job["id"], 10)
         postgres.stop()
         try:
             time.sleep(OUTAGE_S)

@@ -174,6 +174,19 @@ TERMINAL = {"succeeded", "failed", "cancelled"}
 """The job states that end a job."""
 
 
+def wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> dict[str, Any]:
+    """Poll until the job reports ``iteration`` or more (a job that ends first fails the
+    test); returns the job as then read."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
+        if (job.get("progress") or {}).get("iteration", 0) >= iteration:
+            return dict(job)
+        assert job["state"] not in TERMINAL, job
+        time.sleep(0.2)
+    raise TimeoutError(f"job {job_id} did not reach iteration {iteration}")
+
+
 def job_events(url: str, job_id: str) -> list[dict[str, Any]]:
     """Every stored event of a finished job (the stream closes after the terminal state)."""
     ws_url = url.replace("http://", "ws://") + f"/v1/jobs/{job_id}/events?after=0"

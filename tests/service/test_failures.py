@@ -22,21 +22,11 @@ from tests.service.live import (
     assert_resumed_once,
     job_events,
     submit,
+    wait_progress,
     wait_state,
 )
 
 pytestmark = pytest.mark.shared_data
-
-
-def _wait_progress(url: str, job_id: str, iteration: int, timeout: float = 180) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
-        if (job.get("progress") or {}).get("iteration", 0) >= iteration:
-            return dict(job)
-        assert job["state"] not in TERMINAL, job
-        time.sleep(0.2)
-    raise TimeoutError(f"job {job_id} did not reach iteration {iteration}")
 
 
 def _worker_pid(live: LiveService, job_id: str) -> int:
@@ -58,7 +48,7 @@ def test_killed_worker_job_is_requeued_and_resumes_from_its_checkpoint(
     live.wait_ready()
     job = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 600})
     checkpoint = live.data_dir / "jobs" / job["id"] / "run" / "checkpoint.pt"
-    _wait_progress(live.url, job["id"], 60)
+    wait_progress(live.url, job["id"], 60)
     deadline = time.monotonic() + 60
     while not checkpoint.exists():
         assert time.monotonic() < deadline, "no checkpoint was written"
@@ -98,7 +88,7 @@ def test_cancel_stops_a_running_job_and_delete_leaves_nothing(
     live.start_api()
     live.wait_ready()
     job = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 5000})
-    _wait_progress(live.url, job["id"], 5)
+    wait_progress(live.url, job["id"], 5)
     asked = time.monotonic()
     answer = httpx.post(f"{live.url}/v1/jobs/{job['id']}/cancel").json()
     assert answer["state"] == "running"  # flagged; the worker stops at its next iteration
@@ -118,7 +108,7 @@ def test_renders_under_load_while_a_job_trains(live: LiveService, mic_upload) ->
     trained = submit(live.url, mic_upload, FAST_SPEC)
     assert wait_state(live.url, trained["id"], TERMINAL)["state"] == "succeeded"
     training = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 5000})
-    _wait_progress(live.url, training["id"], 1)
+    wait_progress(live.url, training["id"], 1)
 
     cameras = httpx.get(f"{live.url}/v1/models/{trained['id']}").json()["cameras"]
     keys = ("convention", "pose", "matrix", "fx", "fy", "cx", "cy", "width", "height")

@@ -10,6 +10,7 @@ import numpy as np
 from sparsesplat.engine.match.geometry import PinholeArrays, project
 from sparsesplat.engine.match.result import MatchSet
 from sparsesplat.engine.match.settings import MatchSettings
+from tests.engine.datasets.synthetic import look_at_c2w
 
 WIDTH, HEIGHT = 640, 480
 FOCAL = 500.0
@@ -17,13 +18,9 @@ RADIUS = 4.0
 
 
 def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """World-to-camera (OpenCV axes) of a camera at ``centre`` looking at ``target``, up -y."""
-    forward = target - centre
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.array([0.0, -1.0, 0.0]))
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    rot = np.stack([right, down, forward])
+    """World-to-camera (OpenCV axes) of a camera at ``centre`` looking at ``target``, up -y:
+    the rigid inverse of the datasets' helper's camera-to-world."""
+    rot = look_at_c2w(centre, target)[:3, :3].T
     w2c = np.eye(4)
     w2c[:3, :3] = rot
     w2c[:3, 3] = -rot @ centre

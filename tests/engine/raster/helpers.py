@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.raster import RasterOutput, rasterize
 from sparsesplat.engine.raster.projection import ALPHA_THRESHOLD, Projected, project
@@ -69,16 +70,11 @@ def random_gaussians(n: int, seed: int, channels: int = 3, spread: float = 0.8) 
 def camera(width: int = 40, height: int = 30, fx: float = 40.0, fy: float | None = None,
            cx: float | None = None, cy: float | None = None,
            pose: Tensor | None = None) -> Camera:  # fmt: skip
-    """A pinhole camera; identity pose unless given."""
-    return Camera(
-        torch.eye(4) if pose is None else pose,
-        fx,
-        fx if fy is None else fy,
-        width / 2 if cx is None else cx,
-        height / 2 if cy is None else cy,
-        width,
-        height,
-    )
+    """A pinhole camera; identity pose unless given, ``fy`` = ``fx`` and the principal point
+    at the image centre unless given (the SDK's defaults)."""
+    lens = Intrinsics.centred(fx, width, height, fy, cx, cy)
+    pose = torch.eye(4) if pose is None else pose
+    return Camera(pose, lens.fx, lens.fy, lens.cx, lens.cy, width, height)
 
 
 NEAR, FAR, EPS2D = 0.01, 1e10, 0.3
