@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
@@ -297,3 +298,126 @@ def test_the_torch_check_can_fail() -> None:
     )
     assert result.returncode != 0
     assert "torch import attempted" in result.stderr
+
+
+def _module_name(path: Path, root: Path) -> str:
+    """The dotted name ``path`` imports as (a package folder's ``sparsesplat.`` prefix added)."""
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[0] in PACKAGES:
+        parts = ["sparsesplat", *parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _runtime_imports(path: Path, module: str) -> list[tuple[str, str]]:
+    """Every module ``path`` imports when it runs: at module level and inside functions alike
+    (a lazy import closes a circle as surely, only later), but not under ``if
+    TYPE_CHECKING:`` (never executed). Each as (``X.y``, ``X``) for ``from X import y``: the
+    submodule ``X.y`` where y is one, else ``X`` itself (y is a name its ``__init__`` defines;
+    a parent package is loaded before any module in it, so it closes no circle by that)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+    found: list[tuple[str, str]] = []
+
+    def visit(node: ast.AST) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                for stmt in child.orelse:
+                    visit_stmt(stmt)
+                continue
+            visit_stmt(child)
+
+    def visit_stmt(child: ast.AST) -> None:
+        if isinstance(child, ast.Import):
+            found.extend((alias.name, alias.name) for alias in child.names)
+        elif isinstance(child, ast.ImportFrom):
+            base = child.module or ""
+            if child.level:
+                head = package[: len(package) - (child.level - 1)]
+                base = ".".join([*head, *([child.module] if child.module else [])])
+            found.extend((f"{base}.{alias.name}", base) for alias in child.names)
+        else:
+            visit(child)
+
+    visit(tree)
+    return found
+
+
+def _import_graph(root: Path, folders: Sequence[str]) -> dict[str, set[str]]:
+    """Module -> the modules of ours it imports at run time (:func:`_runtime_imports`)."""
+    files = {
+        _module_name(path, root): path
+        for folder in folders
+        for path in sorted((root / folder).rglob("*.py"))
+        if "migrations" not in path.parts  # alembic's scripts run inside alembic only
+    }
+    graph: dict[str, set[str]] = {}
+    for module, path in files.items():
+        targets = {sub if sub in files else base for sub, base in _runtime_imports(path, module)}
+        graph[module] = (targets & files.keys()) - {module}
+    return graph
+
+
+def _import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan's algorithm): each is at
+    least one import circle."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    circles: list[list[str]] = []
+
+    def connect(module: str) -> None:
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        for target in sorted(graph[module]):
+            if target not in index:
+                connect(target)
+                low[module] = min(low[module], low[target])
+            elif target in stack:
+                low[module] = min(low[module], index[target])
+        if low[module] == index[module]:
+            group = []
+            while True:
+                member = stack.pop()
+                group.append(member)
+                if member == module:
+                    break
+            if len(group) > 1:
+                circles.append(sorted(group))
+
+    for module in sorted(graph):
+        if module not in index:
+            connect(module)
+    return circles
+
+
+def test_no_import_circles() -> None:
+    """No module of ours imports itself back through others, lazily inside a function or not
+    (imports under TYPE_CHECKING aside): each concept's home sits above the code that uses
+    it, so any module can be imported first."""
+    graph = _import_graph(REPO, (*PACKAGES, "benchmarks"))
+    assert len(graph) > 200  # the walk found the tree
+    circles = _import_circles(graph)
+    described = [
+        " -> ".join(group) + "  (" + "; ".join(
+            f"{m} imports {sorted(graph[m] & set(group))}" for m in group
+        ) + ")"
+        for group in circles
+    ]  # fmt: skip
+    assert not circles, "import circles:\n" + "\n".join(described)
+
+
+def test_the_circle_check_can_fail(tmp_path: Path) -> None:
+    """Guard against a vacuous check: a circle closed by a lazy import is found, one closed
+    only under TYPE_CHECKING is not."""
+    (tmp_path / "engine").mkdir()
+    (tmp_path / "engine" / "__init__.py").write_text("")
+    (tmp_path / "engine" / "a.py").write_text("from sparsesplat.engine import b\n")
+    (tmp_path / "engine" / "b.py").write_text(
+        "def later():\n    from sparsesplat.engine.a import x\n"
+    )
+    (tmp_path / "engine" / "c.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import d\n"
+    )
+    (tmp_path / "engine" / "d.py").write_text("from .c import y\n")
+    graph = _import_graph(tmp_path, ("engine",))
+    assert _import_circles(graph) == [["sparsesplat.engine.a", "sparsesplat.engine.b"]]
