@@ -550,6 +550,11 @@ class Trainer:
                 )
         if self.matches is not None:
             metrics["matches"] = self.matches.summary
+            if "error" in self.matches.summary:  # the run went on without the matched parts
+                metrics.setdefault("warnings", []).append(
+                    f"matched start and matched-depth term not used: "
+                    f"{self.matches.summary['error']}"
+                )
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
         if self.depth_agreement is not None:

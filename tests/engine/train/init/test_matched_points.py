@@ -44,6 +44,9 @@ def test_one_training_photo_trains_without_matches_and_says_why() -> None:
     trainer.iteration = 1
     trainer._step()
     assert bool(torch.isfinite(trainer.gaussians.means).all())
+    # The run's result says so too (a job stores it among its warnings).
+    warnings = Trainer(scene, small(**MATCHED), priors).run().metrics["warnings"]
+    assert any("not used: 1 training photo" in w for w in warnings), warnings
 
 
 def test_without_the_extra_a_run_says_what_to_install_and_trains_on() -> None:
