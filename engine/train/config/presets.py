@@ -177,6 +177,14 @@ PRESETS: dict[str, dict[str, Any]] = {
         # -0.0032 (every seed down); the Blender recipe's 0.995 gained as much PSNR but raised
         # scan24's LPIPS by 0.0074 (docs/experiments/2026-11-27-blender-opacity-decay.md).
         "densify.opacity_decay": 0.998,
+        # The matched start and the matched-depth term (XFeat + LighterGlue, the matcher the
+        # object-capture study chose): on seeds 0-1 of both scans at 1500 iterations higher
+        # PSNR and lower LPIPS on every run (docs/experiments/2026-11-28-matched-depth.md);
+        # DTU's three photos are about 35 degrees apart, so the matches triangulate precisely
+        # where the plane sweep's start is weakest. About 5 s of matching, counted as training.
+        "init.add_matched": True,
+        "matches.method": "xfeat-lighterglue",
+        "correspondence.weight": 1.0,
     },
     # Blender: 8 views at 400x400, white background, the neural recipe of drums/materials:
     # hard depth only, every 10th iteration, until the end of densification.

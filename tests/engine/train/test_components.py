@@ -347,6 +347,13 @@ def test_presets_and_config_errors() -> None:
         cfg = preset(name)
         assert config_from_dict(cfg.to_dict()) == cfg, name
     assert preset("dtu").depth.patch_min == 17 and preset("blender").depth.soft is False
+    # The matched parts where they measured better (DTU), and nowhere else.
+    dtu = preset("dtu")
+    assert dtu.init.add_matched and dtu.correspondence.enabled
+    assert dtu.matches.method == "xfeat-lighterglue"
+    for name in set(PRESETS) - {"dtu"}:
+        cfg = preset(name)
+        assert not cfg.init.add_matched and not cfg.correspondence.enabled, name
     assert preset("llff", iterations=10).iterations == 10
     with pytest.raises(ConfigError, match="nonsense"):
         preset("llff", nonsense=1)
