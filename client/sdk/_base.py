@@ -255,6 +255,14 @@ class _Base:
         query = urlencode({"after": after})
         return f"{self._ws_base()}/v1/jobs/{job_id}/events?{query}"
 
+    def _ws_options(self) -> dict[str, Any]:
+        """The keywords of every WebSocket the clients open (events, the live view)."""
+        return {
+            "additional_headers": dict(self._headers),
+            "open_timeout": self.timeouts.connect,
+            "close_timeout": 2,
+        }
+
     def _live_url(self, model_id: str) -> str:
         return f"{self._ws_base()}/v1/models/{model_id}/live"
 

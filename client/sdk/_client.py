@@ -198,12 +198,7 @@ class Client(_Base, ClosesOnExit):
         cursor = EventCursor(job_id, after, timeout, self.timeouts.event_idle, self.retry)
         while True:
             try:
-                with connect(
-                    self._ws_url(job_id, cursor.last),
-                    additional_headers=self._headers,
-                    open_timeout=self.timeouts.connect,
-                    close_timeout=2,
-                ) as ws:
+                with connect(self._ws_url(job_id, cursor.last), **self._ws_options()) as ws:
                     cursor.connected()
                     while True:
                         try:
@@ -388,12 +383,7 @@ class AsyncClient(_Base, AsyncClosesOnExit):
         cursor = EventCursor(job_id, after, timeout, self.timeouts.event_idle, self.retry)
         while True:
             try:
-                async with connect(
-                    self._ws_url(job_id, cursor.last),
-                    additional_headers=self._headers,
-                    open_timeout=self.timeouts.connect,
-                    close_timeout=2,
-                ) as ws:
+                async with connect(self._ws_url(job_id, cursor.last), **self._ws_options()) as ws:
                     cursor.connected()
                     while True:
                         try:
