@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchmarks.common import machine_info, write_results
+from sparsesplat.engine.commands.common import add_set_option
 
 if TYPE_CHECKING:
     from sparsesplat.engine.train import Trainer
@@ -195,11 +196,11 @@ def main() -> None:
     parser.add_argument(
         "--no-iteration", action="store_true", help="only the field and loss tables"
     )
-    parser.add_argument(
-        "--set", action="append", default=[], metavar="FIELD=JSON",
-        help="override a TrainConfig field of the timed iteration (repeatable), e.g. to time "
+    add_set_option(
+        parser,
+        "override a TrainConfig field of the timed iteration (repeatable), e.g. to time "
         "the reference's choice: --set depth.hard_downscale=1",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--trained", nargs=2, metavar=("SCENE", "CHECKPOINT"),
         help="also time iterations continuing a real run: the scene folder and the "

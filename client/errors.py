@@ -70,12 +70,13 @@ class JobWarning(UserWarning):
     empty (usually poses read the wrong way). The job may still have succeeded."""
 
 
-def warn_about(job: Job) -> None:
-    """One :class:`JobWarning` per warning on ``job``'s record."""
+def warn_about(job: Job, stacklevel: int = 3) -> None:
+    """One :class:`JobWarning` per warning on ``job``'s record (``stacklevel`` as in
+    :func:`warnings.warn`, counted from this function: 3 names its caller's caller)."""
     import warnings
 
     for message in job.warnings:
-        warnings.warn(f"job {job.id}: {message}", JobWarning, stacklevel=3)
+        warnings.warn(f"job {job.id}: {message}", JobWarning, stacklevel=stacklevel)
 
 
 class RenderWarning(UserWarning):

@@ -109,8 +109,9 @@ def _render_content(response: httpx.Response) -> bytes:
     """A render's bytes; a :class:`RenderWarning` when the service says it sees nothing."""
     message = response.headers.get(RENDER_WARNING_HEADER)
     if message:
-        # stacklevel 4: past this parser, _finish and _send, to the handle that sent the call.
-        warnings.warn(f"render: {message}", RenderWarning, stacklevel=4)
+        # stacklevel 5: past this parser, _finish, _Attempts.read and _send, to the handle
+        # that sent the call.
+        warnings.warn(f"render: {message}", RenderWarning, stacklevel=5)
     return response.content
 
 
@@ -145,6 +146,36 @@ def _spec_json(spec: JobSpec | dict[str, Any] | None, preset: str | None) -> str
     return json.dumps(data)
 
 
+class _Attempts(Generic[T]):
+    """One call's tries, without I/O: :meth:`read` takes what a try gave (the answer, or the
+    transport's error) and says how long to wait before the next try, or None once
+    :attr:`result` holds the decoded answer. An error that is not retried is raised. The
+    clients' ``_send`` only makes the tries and waits."""
+
+    result: T
+    """The decoded answer (set when :meth:`read` returns None)."""
+
+    def __init__(self, client: _Base, call: _Call[T]) -> None:
+        self.client = client
+        self.call = call
+        self.number = 1
+        """The try being read (1: the first)."""
+
+    def read(self, outcome: httpx.Response | httpx.TransportError) -> float | None:
+        """Seconds to wait before trying again, or None when :attr:`result` is set."""
+        try:
+            if isinstance(outcome, httpx.TransportError):
+                raise self.client._transport_error(self.call, outcome) from outcome
+            self.result = self.client._finish(self.call, outcome, self.number)
+            return None
+        except (APIError, ConnectionFailed, Timeout) as exc:
+            wait = self.client._should_retry(self.call, self.number, exc)
+            if wait is None:
+                raise
+        self.number += 1
+        return wait
+
+
 class _Base:
     """What both clients share: base URL, auth header, timeouts, retries, request building."""
 
@@ -169,6 +200,15 @@ class _Base:
 
     def _timeout(self, read: float) -> httpx.Timeout:
         return httpx.Timeout(read, connect=self.timeouts.connect)
+
+    def _http_options(self, transport: Any) -> dict[str, Any]:
+        """The keywords of either client's httpx client (``transport``: its own kind)."""
+        return {
+            "base_url": self.base_url,
+            "headers": self._headers,
+            "timeout": self._timeout(self.timeouts.read),
+            "transport": transport,
+        }
 
     def _should_retry(self, call: _Call[Any], attempt: int, error: BaseException) -> float | None:
         """Seconds to wait before retrying ``call`` after ``error``, or None to give up."""
@@ -214,6 +254,14 @@ class _Base:
     def _ws_url(self, job_id: str, after: int) -> str:
         query = urlencode({"after": after})
         return f"{self._ws_base()}/v1/jobs/{job_id}/events?{query}"
+
+    def _ws_options(self) -> dict[str, Any]:
+        """The keywords of every WebSocket the clients open (events, the live view)."""
+        return {
+            "additional_headers": dict(self._headers),
+            "open_timeout": self.timeouts.connect,
+            "close_timeout": 2,
+        }
 
     def _live_url(self, model_id: str) -> str:
         return f"{self._ws_base()}/v1/models/{model_id}/live"

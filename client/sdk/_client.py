@@ -16,10 +16,10 @@ from sparsesplat.api.cameras import Intrinsics, PinholeCamera
 from sparsesplat.api.jobs import Event, Job, JobPage, JobSpec, JobState, Record
 from sparsesplat.api.schemas import Health, Readiness
 from sparsesplat.api.usage import Usage
-from sparsesplat.client.errors import APIError, ConnectionFailed, SparsesplatError, Timeout
+from sparsesplat.client.errors import SparsesplatError
 from sparsesplat.client.photos import Photos, is_photo_folder, read_photos
 from sparsesplat.client.scenes import SceneFormat, TestViews, Upload, from_images, read_scene
-from sparsesplat.client.sdk._base import T, _Base, _Call
+from sparsesplat.client.sdk._base import T, _Attempts, _Base, _Call
 from sparsesplat.client.sdk._closing import AsyncClosesOnExit, ClosesOnExit
 from sparsesplat.client.sdk._config import IdempotencyKey, RetryPolicy, Timeouts
 from sparsesplat.client.sdk._events import EventCursor
@@ -47,30 +47,20 @@ class Client(_Base, ClosesOnExit):
         transport: httpx.BaseTransport | None = None,
     ) -> None:
         super().__init__(base_url, api_key, timeouts, retry)
-        self._http = httpx.Client(
-            base_url=self.base_url,
-            headers=self._headers,
-            timeout=self._timeout(self.timeouts.read),
-            transport=transport,
-        )
+        self._http = httpx.Client(**self._http_options(transport))
 
     def _send(self, call: _Call[T]) -> T:
-        attempt = 1
-        while True:
-            try:
-                try:
-                    response = self._http.request(
-                        call.method, call.path, **self._request_args(call)
-                    )
-                except httpx.TransportError as exc:
-                    raise self._transport_error(call, exc) from exc
-                return self._finish(call, response, attempt)
-            except (APIError, ConnectionFailed, Timeout) as exc:
-                wait = self._should_retry(call, attempt, exc)
-                if wait is None:
-                    raise
+        attempts = _Attempts(self, call)
+        while (wait := attempts.read(self._try(call))) is not None:
             time.sleep(wait)
-            attempt += 1
+        return attempts.result
+
+    def _try(self, call: _Call[Any]) -> httpx.Response | httpx.TransportError:
+        """One try of ``call``: the answer, or the transport's error."""
+        try:
+            return self._http.request(call.method, call.path, **self._request_args(call))
+        except httpx.TransportError as exc:
+            return exc
 
     # ------------------------------------------------------------ service
 
@@ -208,12 +198,7 @@ class Client(_Base, ClosesOnExit):
         cursor = EventCursor(job_id, after, timeout, self.timeouts.event_idle, self.retry)
         while True:
             try:
-                with connect(
-                    self._ws_url(job_id, cursor.last),
-                    additional_headers=self._headers,
-                    open_timeout=self.timeouts.connect,
-                    close_timeout=2,
-                ) as ws:
+                with connect(self._ws_url(job_id, cursor.last), **self._ws_options()) as ws:
                     cursor.connected()
                     while True:
                         try:
@@ -265,30 +250,20 @@ class AsyncClient(_Base, AsyncClosesOnExit):
         transport: httpx.AsyncBaseTransport | None = None,
     ) -> None:
         super().__init__(base_url, api_key, timeouts, retry)
-        self._http = httpx.AsyncClient(
-            base_url=self.base_url,
-            headers=self._headers,
-            timeout=self._timeout(self.timeouts.read),
-            transport=transport,
-        )
+        self._http = httpx.AsyncClient(**self._http_options(transport))
 
     async def _send(self, call: _Call[T]) -> T:
-        attempt = 1
-        while True:
-            try:
-                try:
-                    response = await self._http.request(
-                        call.method, call.path, **self._request_args(call)
-                    )
-                except httpx.TransportError as exc:
-                    raise self._transport_error(call, exc) from exc
-                return self._finish(call, response, attempt)
-            except (APIError, ConnectionFailed, Timeout) as exc:
-                wait = self._should_retry(call, attempt, exc)
-                if wait is None:
-                    raise
+        attempts = _Attempts(self, call)
+        while (wait := attempts.read(await self._try(call))) is not None:
             await asyncio.sleep(wait)
-            attempt += 1
+        return attempts.result
+
+    async def _try(self, call: _Call[Any]) -> httpx.Response | httpx.TransportError:
+        """One try of ``call``: the answer, or the transport's error."""
+        try:
+            return await self._http.request(call.method, call.path, **self._request_args(call))
+        except httpx.TransportError as exc:
+            return exc
 
     async def health(self) -> Health:
         """``GET /healthz``."""
@@ -408,12 +383,7 @@ class AsyncClient(_Base, AsyncClosesOnExit):
         cursor = EventCursor(job_id, after, timeout, self.timeouts.event_idle, self.retry)
         while True:
             try:
-                async with connect(
-                    self._ws_url(job_id, cursor.last),
-                    additional_headers=self._headers,
-                    open_timeout=self.timeouts.connect,
-                    close_timeout=2,
-                ) as ws:
+                async with connect(self._ws_url(job_id, cursor.last), **self._ws_options()) as ws:
                     cursor.connected()
                     while True:
                         try:

@@ -45,6 +45,14 @@ class _JobHandleBase(Generic[ClientT]):
         """State as last read (see ``refresh()``)."""
         return self.info.state
 
+    def _ended(self, job: Job, raise_on_failure: bool) -> Job:
+        """The end of ``wait``: warn about the final record ``job``, raise :class:`JobFailed`
+        when it did not succeed and ``raise_on_failure``; else return it."""
+        warn_about(job, stacklevel=4)  # past _ended and wait, to wait's caller
+        if raise_on_failure and job.state != JobState.succeeded:
+            raise JobFailed(job)
+        return job
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.id!r}, state={self.state.value!r})"
 
@@ -86,11 +94,7 @@ class JobHandle(_JobHandleBase["Client"]):
                     callback(event)
         finally:
             bar.close()
-        job = self.refresh()
-        warn_about(job)
-        if raise_on_failure and job.state != JobState.succeeded:
-            raise JobFailed(job)
-        return job
+        return self._ended(self.refresh(), raise_on_failure)
 
     def metrics(self) -> list[Record]:
         """Held-out error records so far (the error-against-time curve)."""
@@ -150,11 +154,7 @@ class AsyncJobHandle(_JobHandleBase["AsyncClient"]):
                         await result
         finally:
             bar.close()
-        job = await self.refresh()
-        warn_about(job)
-        if raise_on_failure and job.state != JobState.succeeded:
-            raise JobFailed(job)
-        return job
+        return self._ended(await self.refresh(), raise_on_failure)
 
     async def metrics(self) -> list[Record]:
         """See :meth:`JobHandle.metrics`."""

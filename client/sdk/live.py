@@ -77,12 +77,8 @@ class _LiveSession:
     ) -> None:
         self.model_id = model_id
         self.url = client._live_url(model_id)
-        self._connect_args: dict[str, Any] = {
-            "additional_headers": dict(client._headers),
-            "open_timeout": client.timeouts.connect,
-            "close_timeout": 2,
-            "max_size": None,  # a frame is as large as the image asked for
-        }
+        # max_size: a frame is as large as the image asked for.
+        self._connect_args: dict[str, Any] = client._ws_options() | {"max_size": None}
         self._recv_s = client.timeouts.render
         self._options: dict[str, Any] = {
             "output": output, "quality": quality, "mode": mode, "downscale": downscale,

@@ -3,6 +3,7 @@ extension notice, JSON output. No torch import at module level."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import os
@@ -120,3 +121,10 @@ def json_line(obj: dict[str, Any]) -> str:
     from sparsesplat.engine.train.loop.recorder import json_safe
 
     return json.dumps(json_safe(obj), allow_nan=False, default=str)
+
+
+def add_set_option(parser: argparse.ArgumentParser, help: str) -> None:
+    """The repeatable ``--set FIELD=JSON`` option: TrainConfig fields by their dotted names,
+    each read by :func:`~sparsesplat.engine.train.config.overrides.parse_override` from the
+    list ``args.set``; ``help`` says what the overrides apply to."""
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=JSON", help=help)

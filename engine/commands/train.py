@@ -14,6 +14,7 @@ from typing import Any, TextIO, get_args
 from sparsesplat.api.names import PresetName
 from sparsesplat.engine.commands.common import (
     CommandError,
+    add_set_option,
     check_device,
     guarded,
     json_line,
@@ -114,11 +115,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="random seed")
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     parser.add_argument("--resume", default=None, help="continue from this checkpoint")
-    parser.add_argument(
-        "--set", action="append", default=[], metavar="FIELD=JSON",
-        help="override any TrainConfig field by its dotted name, value as JSON (repeatable), "
+    add_set_option(
+        parser,
+        "override any TrainConfig field by its dotted name, value as JSON (repeatable), "
         "e.g. --set background=white --set photometric.lambda_dssim=0.3 --set depth.soft_start=500",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object per line (no progress bar)"
     )

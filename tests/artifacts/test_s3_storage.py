@@ -25,14 +25,22 @@ def storage(s3: MotoS3, root: Path, bucket: str, **override: str) -> Storage:
     return Storage.for_settings(load_settings(data_dir=root, **(env | override)))
 
 
+def write_artifact(store: Storage, kind: str, data: bytes) -> Path:
+    """``data`` written where ``store`` keeps the job's ``kind`` file, as a trainer writes it
+    (not published); its path."""
+    path = store.artifact(JOB, kind)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(data)
+    return path
+
+
 def test_a_large_model_goes_up_in_parts_and_comes_back_whole_on_another_machine(
     s3: MotoS3, tmp_path: Path
 ) -> None:
     bucket = s3.new_bucket()
     worker, server = storage(s3, tmp_path / "w", bucket), storage(s3, tmp_path / "s", bucket)
-    model = worker.artifact(JOB, "ply")
-    model.parent.mkdir(parents=True)
-    model.write_bytes(os.urandom(20 * 2**20 + 123))  # > 16 MB: three parts of 8 MiB
+    # > 16 MB: three parts of 8 MiB
+    model = write_artifact(worker, "ply", os.urandom(20 * 2**20 + 123))
     worker.publish(model)
 
     head = s3.client().head_object(Bucket=bucket, Key=f"deploy/jobs/{JOB}/run/model.ply")
@@ -70,9 +78,7 @@ def test_upload_checkpoint_usage_and_delete(s3: MotoS3, tmp_path: Path) -> None:
 
     # Another machine that trained the job less far has an older checkpoint: the stored one wins.
     other = storage(s3, tmp_path / "w2", bucket)
-    stale = other.artifact(JOB, "checkpoint")
-    stale.parent.mkdir(parents=True)
-    stale.write_bytes(b"iteration 5")
+    stale = write_artifact(other, "checkpoint", b"iteration 5")
     assert other.fetch_checkpoint(JOB)
     assert stale.read_bytes() == b"iteration 20"
 
@@ -105,9 +111,7 @@ def test_a_refused_credential_names_the_cause_and_loses_nothing(
 ) -> None:
     bucket = s3.new_bucket()
     good = storage(s3, tmp_path / "good", bucket)
-    model = good.artifact(JOB, "ply")
-    model.parent.mkdir(parents=True)
-    model.write_bytes(b"the model")
+    model = write_artifact(good, "ply", b"the model")
     good.publish(model)
 
     bad = storage(s3, tmp_path / "bad", bucket, **override)
@@ -144,9 +148,7 @@ def test_without_a_location_files_stay_local(tmp_path: Path) -> None:
     store.check()
     with pytest.raises(ArtifactMissing):
         store.fetch(store.artifact(JOB, "ply"))
-    path = store.artifact(JOB, "ply")
-    path.parent.mkdir(parents=True)
-    path.write_bytes(b"12345")
+    path = write_artifact(store, "ply", b"12345")
     assert store.fetch(path) == path and store.has(path) and store.job_bytes(JOB) == 5
 
 
@@ -199,9 +201,8 @@ def test_jobs_known_only_to_the_bucket_are_found_for_the_stray_sweep(
 
     bucket = s3.new_bucket()
     worker, api = storage(s3, tmp_path / "w", bucket), storage(s3, tmp_path / "api", bucket)
-    path = worker.artifact(JOB, "checkpoint")
-    path.parent.mkdir(parents=True)
-    path.write_bytes(b"left by a worker killed after its job was deleted")
+    left = b"left by a worker killed after its job was deleted"
+    path = write_artifact(worker, "checkpoint", left)
     before = time.time()
     worker.publish(path)
     stored = api.stored_jobs()

@@ -8,6 +8,8 @@ the next job runs once the space is back."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -40,6 +42,18 @@ def _service(tmp_path: Path, faults: Faults, **settings: str) -> LiveService:
         **{f"SPARSESPLAT_{k.upper()}": v for k, v in settings.items()},
     }
     return LiveService(tmp_path / "data", env)
+
+
+@contextmanager
+def _ready_service(tmp_path: Path, faults: Faults, **settings: str) -> Iterator[LiveService]:
+    """The service of :func:`_service` with its workers, ready for jobs; stopped after."""
+    live = _service(tmp_path, faults, **settings)
+    try:
+        live.start_api()
+        live.wait_ready()
+        yield live
+    finally:
+        live.stop()
 
 
 def _post_job(url: str, folder: Path) -> httpx.Response:
@@ -113,10 +127,7 @@ def _fails_at(live: LiveService, folder: Path, site: str, model_id: str) -> dict
 def test_a_full_disk_at_each_write_of_a_job_fails_it_naming_the_write(
     tmp_path: Path, faults: Faults, mic_upload: Path
 ) -> None:
-    live = _service(tmp_path, faults)
-    try:
-        live.start_api()
-        live.wait_ready()
+    with _ready_service(tmp_path, faults) as live:
         earlier = submit(live.url, mic_upload, FAST_SPEC)
         assert wait_state(live.url, earlier["id"], TERMINAL)["state"] == "succeeded"
 
@@ -135,17 +146,12 @@ def test_a_full_disk_at_each_write_of_a_job_fails_it_naming_the_write(
         after = submit(live.url, mic_upload, FAST_SPEC)
         assert wait_state(live.url, after["id"], TERMINAL)["state"] == "succeeded"
         assert partial_files(live.data_dir) == []
-    finally:
-        live.stop()
 
 
 def test_a_full_job_database_mid_job_fails_it_once_space_returns(
     tmp_path: Path, faults: Faults, mic_upload: Path
 ) -> None:
-    live = _service(tmp_path, faults, disk_wait_s="120")
-    try:
-        live.start_api()
-        live.wait_ready()
+    with _ready_service(tmp_path, faults, disk_wait_s="120") as live:
         earlier = submit(live.url, mic_upload, FAST_SPEC)
         assert wait_state(live.url, earlier["id"], TERMINAL)["state"] == "succeeded"
         job = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 3000})
@@ -171,17 +177,12 @@ def test_a_full_job_database_mid_job_fails_it_once_space_returns(
         assert done["error"].startswith(f"{NO_SPACE} while committing to the job database")
         assert wait_state(live.url, queued["id"], TERMINAL)["state"] == "succeeded"
         assert "heartbeat failed: the disk holding the job database is full" in live.tail(10**6)
-    finally:
-        live.stop()
 
 
 def test_a_job_that_does_not_fit_waits_for_space_then_starts_or_fails(
     tmp_path: Path, faults: Faults, mic_upload: Path
 ) -> None:
-    live = _service(tmp_path, faults, disk_wait_s="6")
-    try:
-        live.start_api()
-        live.wait_ready()
+    with _ready_service(tmp_path, faults, disk_wait_s="6") as live:
         faults.set("free 3000000")  # 3 MB: under any job's expected bytes
 
         # Space returns while it waits: it starts, and the job behind it too.
@@ -207,5 +208,3 @@ def test_a_job_that_does_not_fit_waits_for_space_then_starts_or_fails(
         assert done["error"].startswith(f"{NO_SPACE} to start this job (needs ~")
         assert "3.0 MB free; waited 6 s" in done["error"]
         renders(live.url, first["id"])
-    finally:
-        live.stop()
