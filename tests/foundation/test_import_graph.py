@@ -421,3 +421,32 @@ def test_the_circle_check_can_fail(tmp_path: Path) -> None:
     (tmp_path / "engine" / "d.py").write_text("from .c import y\n")
     graph = _import_graph(tmp_path, ("engine",))
     assert _import_circles(graph) == [["sparsesplat.engine.a", "sparsesplat.engine.b"]]
+
+
+def _reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module of ours that importing ``start`` can load: its imports, lazy ones
+    included, and the packages above each (Python runs a package's ``__init__`` first)."""
+    seen: set[str] = set()
+    todo = [start]
+    while todo:
+        module = todo.pop()
+        if module in seen or module not in graph:
+            continue
+        seen.add(module)
+        parts = module.split(".")
+        todo.extend(".".join(parts[:i]) for i in range(2, len(parts)))
+        todo.extend(graph[module])
+    return seen
+
+
+def test_the_render_worker_does_not_load_the_training_package() -> None:
+    """Serving renders needs the trained model (engine/model), not the trainer: a render
+    worker that loaded engine/train would pay its imports and could not be shipped without
+    it."""
+    graph = _import_graph(REPO, PACKAGES)
+    loaded = _reachable(graph, "sparsesplat.worker.render_server")
+    assert "sparsesplat.engine.model" in loaded  # the walk reaches what it renders with
+    training = sorted(m for m in loaded if m.startswith("sparsesplat.engine.train"))
+    assert not training, f"the render worker can load {training}"
+    # And the check sees the trainer where it is loaded.
+    assert "sparsesplat.engine.train" in _reachable(graph, "sparsesplat.worker.job_runner")
