@@ -65,7 +65,12 @@ def test_events_resume_after_a_dropped_connection(trained: Trained) -> None:
             events = list(client.events(trained.job.id, timeout=60))
     finally:
         proxy.close()
-    assert proxy.cut >= 1 and proxy.connections == proxy.cut + 1, "not cut and resumed"
+    # At least one cut landed mid-stream and was resumed. The last cut may instead fall in the
+    # closing handshake, after the final event (how many bytes are left for the second
+    # connection depends on how many progress events the job stored): then there is nothing
+    # to resume and no further connection.
+    assert proxy.cut >= 1 and proxy.connections >= 2, "not cut and resumed"
+    assert proxy.connections in (proxy.cut, proxy.cut + 1), (proxy.cut, proxy.connections)
     seqs = [e.seq for e in events]
     assert seqs == list(range(1, len(seqs) + 1))
     assert seqs[-1] == trained.events[-1].seq
