@@ -13,6 +13,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -51,29 +52,25 @@ def json_safe(value: Any) -> Any:
     return value
 
 
+@dataclass(eq=False)
 class Recorder:
     """Evaluates, keeps the error-vs-time series and writes the run's files.
 
     Hooks: :meth:`add_train_loss` (every iteration), :meth:`record` (when an evaluation is
     due and at the end), :meth:`final_metrics` and :meth:`write_outputs` (at the end)."""
 
-    def __init__(
-        self,
-        settings: RecordConfig,
-        scene: Scene,
-        background: Tensor,
-        raster: Raster,
-        out_dir: Path | None,
-        preset: str = "default",
-    ) -> None:
-        """``scene``: its held-out views are scored; ``background``: the run's (3,) colour;
-        ``preset``: the preset name, copied into the metrics."""
-        self.settings = settings
-        self.preset = preset
-        self.scene = scene
-        self.background = background
-        self.raster = raster
-        self.out_dir = out_dir
+    settings: RecordConfig
+    scene: Scene
+    """Its held-out views are scored."""
+    background: Tensor
+    """The run's (3,) colour."""
+    raster: Raster
+    out_dir: Path | None
+    preset: str = "default"
+    """The preset name, copied into the metrics."""
+
+    def __post_init__(self) -> None:
+        """The series, the per-view results and the loss mean start empty."""
         self.records: list[dict[str, Any]] = []
         """The error-vs-time series (ProgressRecord dicts)."""
         self.view_coverage: dict[str, float] = {}
