@@ -17,6 +17,30 @@ from typing import Literal
 from sparsesplat.api.names import ColorModelName, InitName
 from sparsesplat.engine.errors import ConfigError
 
+__all__ = [
+    "AuxiliaryStepName",
+    "Box",
+    "ColorConfig",
+    "ConsistencyConfig",
+    "ConsistencyPartnersName",
+    "CorrespondenceConfig",
+    "DensifyConfig",
+    "DepthConfig",
+    "DropoutConfig",
+    "DtuConfig",
+    "GuardConfig",
+    "InitConfig",
+    "MatcherName",
+    "MatchesConfig",
+    "NearPruneConfig",
+    "OptimConfig",
+    "PartnerDepthName",
+    "PhotometricConfig",
+    "RecordConfig",
+]
+"""The sections and the names of their values: the package (``config/__init__.py``) re-exports
+these as its public surface, so the list lives here, beside the definitions."""
+
 AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
 ConsistencyPartnersName = Literal["nearest", "all"]
