@@ -509,9 +509,7 @@ class CorrespondenceConfig:
         if self.max_error is not None and not (
             math.isfinite(self.max_error) and self.max_error > 0.0
         ):
-            raise ConfigError(
-                f"correspondence.max_error must be > 0 or None, got {self.max_error}"
-            )
+            raise ConfigError(f"correspondence.max_error must be > 0 or None, got {self.max_error}")
 
 
 @dataclass(frozen=True)

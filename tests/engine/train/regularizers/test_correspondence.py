@@ -113,7 +113,6 @@ def test_pixels_without_opacity_are_skipped() -> None:
     assert float(loss) == pytest.approx(2.0 / 0.3 - 1.0, rel=1e-5)
 
 
-
 def test_observations_beyond_max_error_are_skipped_but_stay_in_the_mean() -> None:
     """A truncated loss: an observation the render puts 50 % off costs nothing with
     ``max_error`` 0.2 (and sends no gradient), one 10 % off still costs its excess, and the
