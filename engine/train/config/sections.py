@@ -510,6 +510,10 @@ class CorrespondenceConfig:
     f = 400 px), object orbits at tens (0.4 % at 33 degrees). 0: ``tolerance`` alone."""
     min_alpha: float = 0.5
     """Pixels whose rendered opacity is below this are skipped (no surface to move yet)."""
+    max_error: float | None = None
+    """Observations whose relative depth error exceeds this are skipped on that iteration: a
+    match the render disagrees with by that much is more likely wrong (glass, repeated
+    structure) than a surface to pull there. None: every observation counts."""
 
     @property
     def enabled(self) -> bool:
@@ -526,6 +530,10 @@ class CorrespondenceConfig:
             raise ConfigError(f"correspondence.pixel_error must be >= 0, got {self.pixel_error}")
         if not 0.0 <= self.min_alpha < 1.0:
             raise ConfigError(f"correspondence.min_alpha must be in [0, 1), got {self.min_alpha}")
+        if self.max_error is not None and not (
+            math.isfinite(self.max_error) and self.max_error > 0.0
+        ):
+            raise ConfigError(f"correspondence.max_error must be > 0 or None, got {self.max_error}")
 
 
 @dataclass(frozen=True)

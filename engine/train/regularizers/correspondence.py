@@ -56,10 +56,12 @@ def matched_depth_loss(
     target: Tensor,
     tolerance: float | Tensor,
     min_alpha: float,
+    max_error: float | None = None,
 ) -> Tensor | None:
     """The term for one view (module docstring): ``depth`` and ``alpha`` (H, W) or (1, H, W)
     from a render, ``xy`` (K, 2) observation pixels, ``target`` (K,) the points' camera-space
-    depths (all > 0), ``tolerance`` the dead zone (one value, or (K,) one per observation).
+    depths (all > 0), ``tolerance`` the dead zone (one value, or (K,) one per observation),
+    ``max_error`` the relative error beyond which an observation is skipped (None: none is).
     None where no observation has enough opacity."""
     h, w = depth.shape[-2:]
     stacked = torch.stack([depth.reshape(h, w), alpha.reshape(h, w)])
@@ -69,7 +71,12 @@ def matched_depth_loss(
         return None
     relative = (d[use] / a[use]) / target[use] - 1.0
     dead = tolerance[use] if isinstance(tolerance, Tensor) else tolerance
-    return (relative.abs() - dead).clamp_min(0.0).mean()
+    error = (relative.abs() - dead).clamp_min(0.0)
+    if max_error is not None:
+        # A truncated loss: the mean stays over the observations with enough opacity, so
+        # skipping an outlier does not raise the others' weight.
+        error = error * (relative.detach().abs() <= max_error)
+    return error.mean()
 
 
 class CorrespondenceTerm:
@@ -124,6 +131,6 @@ class CorrespondenceTerm:
             return None
         i = view.index
         loss = matched_depth_loss(
-            out.depth, out.alpha, self.xy[i], target, self.tolerance[i], s.min_alpha
+            out.depth, out.alpha, self.xy[i], target, self.tolerance[i], s.min_alpha, s.max_error
         )
         return None if loss is None else s.weight * loss

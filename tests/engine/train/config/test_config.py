@@ -29,6 +29,7 @@ _NEW_FIELDS = {
     *(f"correspondence.{name}" for name in ("weight", "start", "until", "tolerance")),
     "correspondence.pixel_error",
     "correspondence.min_alpha",
+    "correspondence.max_error",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 

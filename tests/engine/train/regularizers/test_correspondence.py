@@ -113,6 +113,29 @@ def test_pixels_without_opacity_are_skipped() -> None:
     assert float(loss) == pytest.approx(2.0 / 0.3 - 1.0, rel=1e-5)
 
 
+def test_observations_beyond_max_error_are_skipped_but_stay_in_the_mean() -> None:
+    """A truncated loss: an observation the render puts 50 % off costs nothing with
+    ``max_error`` 0.2 (and sends no gradient), one 10 % off still costs its excess, and the
+    mean is over both (skipping an outlier does not weigh the others more)."""
+    depth = torch.full((1, 8, 8), 1.0)
+    depth[0, 4, 3] = 1.1  # observation 0: 10 % too far
+    depth[0, 1, 1] = 1.5  # observation 1: 50 % too far
+    depth.requires_grad_(True)
+    alpha = torch.ones(1, 8, 8)
+    xy = torch.tensor([[3.5, 4.5], [1.5, 1.5]])
+    target = torch.tensor([1.0, 1.0])
+    plain = matched_depth_loss(depth, alpha, xy, target, 0.0, 0.5)
+    assert plain is not None
+    assert float(plain) == pytest.approx((0.1 + 0.5) / 2, rel=1e-5)
+    cut = matched_depth_loss(depth, alpha, xy, target, 0.0, 0.5, max_error=0.2)
+    assert cut is not None
+    assert float(cut) == pytest.approx(0.1 / 2, rel=1e-4)
+    cut.backward()
+    assert depth.grad is not None
+    assert float(depth.grad[0, 1, 1]) == 0.0  # the outlier pulls nothing
+    assert float(depth.grad[0, 4, 3]) > 0.0
+
+
 def _matches(
     cams: list[Camera], points: np.ndarray, angles: np.ndarray | None = None
 ) -> RunMatches:
