@@ -8,10 +8,11 @@ reprojection error, points, seconds, and the message when the estimation refused
 
     python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...]
 
-``--train SCENE --iterations N`` instead trains the scene twice with the same preset and
-seed: from the dataset's cameras, and from the estimated ones with the held-out cameras
-mapped into the estimated frame by the alignment (the estimated focal length for both), and
-compares the held-out PSNR/SSIM/LPIPS.
+``--train SCENE [--iterations N] [--given]`` instead trains the scene twice with its preset
+and seed 0: from the dataset's training cameras, and from the estimated ones (with the
+dataset's intrinsics when ``--given``) brought into the dataset's frame by the similarity
+alignment, and compares the held-out PSNR/SSIM/LPIPS on the dataset's held-out views and
+protocol (DTU's object masks included).
 """
 
 from __future__ import annotations
@@ -79,62 +80,91 @@ def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
     }
 
 
-def _write_estimated_folder(folder: Path, out: Path, threads: int) -> Path:
-    """``out`` as an upload folder: the training views with estimated cameras, the held-out
-    views at their dataset poses mapped by the similarity alignment."""
+def _estimate(scene: Any, given: bool, threads: int, tmp: Path) -> Any:
+    """The cameras of ``scene``'s training views estimated from their pixels alone (PNGs in
+    ``tmp``), with the dataset's intrinsics held fixed when ``given``."""
     from PIL import Image
 
-    from sparsesplat.engine.datasets import load_scene
+    from sparsesplat.api.cameras import Intrinsics
     from sparsesplat.engine.sfm import estimate_cameras
-    from sparsesplat.engine.sfm.align import align
-    from sparsesplat.engine.sfm.store import estimate_document, write_estimate
 
-    scene = load_scene(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    names = []
-    for split, views in (("train", scene.train), ("test", scene.test)):
-        for i, view in enumerate(views):
-            pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
-            names.append(f"{split}_{i:03d}.png")
-            Image.fromarray(pixels).save(out / names[-1])
-    train = [out / n for n in names if n.startswith("train")]
-    result = estimate_cameras(train, threads=threads)
-    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    similarity = align(est, [v.camera.world_to_camera.double().numpy() for v in scene.train])
-    write_estimate(result, out / "cameras.json")
-    document = estimate_document(result)
-    first = document["frames"][0]
-    for i, view in enumerate(scene.test):
-        w2c = similarity.map_world_to_camera(view.camera.world_to_camera.double().numpy())
-        document["frames"].append(
-            {**first, "image": f"test_{i:03d}.png", "matrix": np.linalg.inv(w2c).tolist(),
-             "split": "test"}
+    paths = []
+    for i, view in enumerate(scene.train):
+        pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
+        paths.append(tmp / f"{i:03d}.png")
+        Image.fromarray(pixels).save(paths[-1])
+    cam = scene.train[0].camera
+    intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy) if given else None
+    return estimate_cameras(paths, intrinsics, threads=threads)
+
+
+def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, float]]:
+    """``scene`` with its training cameras replaced by ``estimate``'s, brought into the
+    dataset's frame by the similarity that best aligns them, and the estimate's sparse points
+    likewise; everything else (held-out cameras, masks, bounds, format) is the dataset's. A run
+    on it differs from one on ``scene`` only by the estimation's errors: the poses' residual
+    after the alignment and, unless given, the intrinsics. Also returns the rotation errors
+    (median and largest, degrees) and the estimated focal length."""
+    import dataclasses
+
+    import torch
+
+    from sparsesplat.engine.camera import Camera
+    from sparsesplat.engine.sfm.align import align, rotation_errors_deg
+
+    est = [np.linalg.inv(np.array(f.matrix)) for f in estimate.cameras.frames]
+    ref = [v.camera.world_to_camera.double().numpy() for v in scene.train]
+    sim = align(est, ref)  # x_est = s R x_ref + t
+    errors = rotation_errors_deg(est, ref, sim)
+    train = []
+    for view, w2c_est, frame in zip(scene.train, est, estimate.cameras.frames, strict=True):
+        rotation = w2c_est[:3, :3] @ sim.rotation  # the camera's axes in the dataset's frame
+        centre_est = -w2c_est[:3, :3].T @ w2c_est[:3, 3]
+        centre = sim.rotation.T @ (centre_est - sim.translation) / sim.scale
+        w2c = np.eye(4)
+        w2c[:3, :3], w2c[:3, 3] = rotation, -rotation @ centre
+        old = view.camera
+        camera = Camera(
+            torch.from_numpy(w2c).to(old.world_to_camera), frame.fx, frame.fy, frame.cx,
+            frame.cy, old.width, old.height,
         )  # fmt: skip
-    (out / "cameras.json").write_text(json.dumps(document, indent=1))
-    return out
+        train.append(dataclasses.replace(view, camera=camera))
+    points = (estimate.points.astype(np.float64) - sim.translation) @ sim.rotation / sim.scale
+    sparse = (torch.from_numpy(points).float(), torch.from_numpy(estimate.colours).float())
+    figures = {"median_deg": float(np.median(errors)), "max_deg": float(np.max(errors)),
+               "focal_px": float(estimate.cameras.frames[0].fx)}  # fmt: skip
+    return dataclasses.replace(scene, train=train, sparse_points=sparse), figures
 
 
-def train_comparison(folder: Path, iterations: int, threads: int) -> list[dict[str, Any]]:
-    """Held-out metrics of the same run from the dataset's and the estimated cameras."""
+def train_comparison(
+    folder: Path, iterations: int | None, threads: int, given: bool
+) -> list[dict[str, Any]]:
+    """Held-out metrics of the same run (the scene's preset, seed 0) from the dataset's and
+    from the estimated training cameras (:func:`with_estimated_cameras`), scored on the
+    dataset's held-out views and protocol (DTU's object masks included)."""
     import torch
 
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.train.run import RunSpec, build_run
 
     torch.set_num_threads(threads)
+    dataset = load_scene(folder)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        estimated = _write_estimated_folder(folder, Path(tmp) / "estimated", threads)
-        for cameras, path in (("dataset", folder), ("estimated", estimated)):
-            scene = load_scene(path)
-            name = {"llff": "llff", "dtu": "dtu", "blender": "blender"}.get(scene.format, "llff")
-            # The one run recipe (the CLI's and the service's), with the preset named.
-            spec = RunSpec(name, {"seed": 0, "threads": threads}, iterations)
+        estimated, figures = with_estimated_cameras(
+            dataset, _estimate(dataset, given, threads, Path(tmp))
+        )
+        print(json.dumps({"estimate": figures}), flush=True)
+        for cameras, scene in (("dataset", dataset), ("estimated", estimated)):
+            # The one run recipe (the CLI's and the service's), its preset from the format.
+            spec = RunSpec(None, {"seed": 0, "threads": threads}, iterations)
             result = build_run(spec, scene, out_dir=Path(tmp) / cameras).trainer.run()
             metrics = result.metrics
-            row = {"cameras": cameras, "preset": name, "iterations": iterations,
+            row = {"cameras": cameras, "intrinsics": "given" if given else "estimated",
+                   "preset": metrics.get("preset"), "iterations": metrics.get("iterations"),
                    "test_views": len(scene.test), "seconds": result.seconds,
-                   **{k: metrics.get(k) for k in ("psnr", "ssim", "lpips")}}  # fmt: skip
+                   **{k: metrics.get(k) for k in ("psnr", "ssim", "lpips")},
+                   **(figures if cameras == "estimated" else {})}  # fmt: skip
             rows.append(row)
             print(json.dumps(row), flush=True)
     return rows
@@ -148,11 +178,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--train", choices=list(SCENES), help="training comparison on SCENE")
     parser.add_argument("--iterations", type=int, default=None, help="with --train")
+    parser.add_argument(
+        "--given", action="store_true",
+        help="with --train: estimate with the dataset's intrinsics held fixed",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     root = args.data or default_data_root()
     if args.train:
-        rows = train_comparison(root / SCENES[args.train], args.iterations, args.threads)
-        out = results_dir() / f"cameras-train-{args.train}.json"
+        rows = train_comparison(
+            root / SCENES[args.train], args.iterations, args.threads, args.given
+        )
+        mode = "given" if args.given else "estimated"
+        out = results_dir() / f"cameras-train-{args.train}-{mode}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps({"machine": machine_info(), "rows": rows}, indent=1))
         print(f"written: {out}")

@@ -39,8 +39,15 @@ def _project_rotation(m: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle_deg(r: np.ndarray) -> float:
-    """Angle of the rotation matrix ``r`` in degrees."""
-    return math.degrees(math.acos(float(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+    """Angle of the rotation matrix ``r`` in degrees.
+
+    From both its cosine ((trace - 1) / 2) and its sine (half the norm of the skew part):
+    the arccosine alone loses small angles to rounding (a rounding of 1e-16 in the cosine
+    reads as about 1e-6 degrees, 1e-8 as 0.008)."""
+    cos = (float(np.trace(r)) - 1.0) / 2.0
+    skew = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    sin = float(np.linalg.norm(skew)) / 2.0
+    return math.degrees(math.atan2(sin, cos))
 
 
 def align(est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray]) -> Similarity:
