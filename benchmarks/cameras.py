@@ -41,26 +41,17 @@ COLUMNS = ["scene", "intrinsics", "views", "registered", "median_deg", "max_deg"
 
 def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
     """One scene, one intrinsics mode: the figures of the module docstring."""
-    from PIL import Image
-
-    from sparsesplat.api.cameras import Intrinsics
     from sparsesplat.engine.datasets import load_scene
-    from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
+    from sparsesplat.engine.sfm import CameraEstimationError
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 
     scene = load_scene(folder)
     views = scene.train
+    cam = views[0].camera
     row: dict[str, Any] = {"views": len(views), "intrinsics": "given" if given else "estimated"}
     with tempfile.TemporaryDirectory() as tmp:
-        paths = []
-        for i, view in enumerate(views):
-            pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
-            paths.append(Path(tmp) / f"{i:03d}.png")
-            Image.fromarray(pixels).save(paths[-1])
-        cam = views[0].camera
-        intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy) if given else None
         try:
-            result = estimate_cameras(paths, intrinsics, threads=threads)
+            result = _estimate(scene, given, threads, Path(tmp))
         except CameraEstimationError as exc:
             return {**row, "registered": 0, "outcome": str(exc)}
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
@@ -114,22 +105,19 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
 
     est = [np.linalg.inv(np.array(f.matrix)) for f in estimate.cameras.frames]
     ref = [v.camera.world_to_camera.double().numpy() for v in scene.train]
-    sim = align(est, ref)  # x_est = s R x_ref + t
+    sim = align(est, ref)
     errors = rotation_errors_deg(est, ref, sim)
+    back = sim.inverse()  # the estimated frame -> the dataset's
     train = []
     for view, w2c_est, frame in zip(scene.train, est, estimate.cameras.frames, strict=True):
-        rotation = w2c_est[:3, :3] @ sim.rotation  # the camera's axes in the dataset's frame
-        centre_est = -w2c_est[:3, :3].T @ w2c_est[:3, 3]
-        centre = sim.rotation.T @ (centre_est - sim.translation) / sim.scale
-        w2c = np.eye(4)
-        w2c[:3, :3], w2c[:3, 3] = rotation, -rotation @ centre
+        w2c = back.map_world_to_camera(w2c_est)
         old = view.camera
         camera = Camera(
             torch.from_numpy(w2c).to(old.world_to_camera), frame.fx, frame.fy, frame.cx,
             frame.cy, old.width, old.height,
         )  # fmt: skip
         train.append(dataclasses.replace(view, camera=camera))
-    points = (estimate.points.astype(np.float64) - sim.translation) @ sim.rotation / sim.scale
+    points = back.map_points(estimate.points.astype(np.float64))
     sparse = (torch.from_numpy(points).float(), torch.from_numpy(estimate.colours).float())
     figures = {"median_deg": float(np.median(errors)), "max_deg": float(np.max(errors)),
                "focal_px": float(estimate.cameras.frames[0].fx)}  # fmt: skip

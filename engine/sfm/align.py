@@ -31,6 +31,15 @@ class Similarity:
         out[:3, 3] = -r_est @ c_est
         return out
 
+    def map_points(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) reference-frame points expressed in the estimated frame."""
+        return self.scale * points @ self.rotation.T + self.translation
+
+    def inverse(self) -> Similarity:
+        """The similarity taking the estimated frame back to the reference one."""
+        rotation = self.rotation.T
+        return Similarity(rotation, 1.0 / self.scale, -rotation @ self.translation / self.scale)
+
 
 def _project_rotation(m: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(m)
