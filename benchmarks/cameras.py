@@ -124,12 +124,24 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
     return dataclasses.replace(scene, train=train, sparse_points=sparse), figures
 
 
+RUNS = ("dataset", "estimated", "refined")
+"""The runs of a training comparison: from the dataset's cameras, from the estimated ones, and
+from the estimated ones refined during training (``poses.enabled``)."""
+
+
 def train_comparison(
-    folder: Path, iterations: int | None, threads: int, given: bool
+    folder: Path,
+    iterations: int | None,
+    threads: int,
+    given: bool,
+    runs: tuple[str, ...] = RUNS,
 ) -> list[dict[str, Any]]:
     """Held-out metrics of the same run (the scene's preset, seed 0) from the dataset's and
-    from the estimated training cameras (:func:`with_estimated_cameras`), scored on the
-    dataset's held-out views and protocol (DTU's object masks included)."""
+    from the estimated training cameras (:func:`with_estimated_cameras`), the latter also with
+    the cameras refined during training, scored on the dataset's held-out views and protocol
+    (DTU's object masks included). A refined run is scored twice: at the held-out cameras as
+    the dataset gives them (its first camera fixed the frame), and at those cameras mapped by
+    the similarity that aligns its refined training cameras to the dataset's (``realigned``)."""
     import torch
 
     from sparsesplat.engine.datasets import load_scene
@@ -143,19 +155,55 @@ def train_comparison(
             dataset, _estimate(dataset, given, threads, Path(tmp))
         )
         print(json.dumps({"estimate": figures}), flush=True)
-        for cameras, scene in (("dataset", dataset), ("estimated", estimated)):
+        for run in runs:
+            scene = dataset if run == "dataset" else estimated
+            overrides: dict[str, Any] = {"seed": 0, "threads": threads}
+            if run == "refined":
+                overrides["poses.enabled"] = True
             # The one run recipe (the CLI's and the service's), its preset from the format.
-            spec = RunSpec(None, {"seed": 0, "threads": threads}, iterations)
-            result = build_run(spec, scene, out_dir=Path(tmp) / cameras).trainer.run()
+            spec = RunSpec(None, overrides, iterations)
+            trainer = build_run(spec, scene, out_dir=Path(tmp) / run).trainer
+            result = trainer.run()
             metrics = result.metrics
-            row = {"cameras": cameras, "intrinsics": "given" if given else "estimated",
+            row = {"cameras": run, "intrinsics": "given" if given else "estimated",
                    "preset": metrics.get("preset"), "iterations": metrics.get("iterations"),
                    "test_views": len(scene.test), "seconds": result.seconds,
                    **{k: metrics.get(k) for k in ("psnr", "ssim", "lpips")},
-                   **(figures if cameras == "estimated" else {})}  # fmt: skip
+                   **(figures if run != "dataset" else {})}  # fmt: skip
+            if run == "refined":
+                row["pose_refinement"] = metrics.get("pose_refinement")
+                row["realigned"] = realigned_metrics(trainer, dataset)
             rows.append(row)
             print(json.dumps(row), flush=True)
     return rows
+
+
+def realigned_metrics(trainer: Any, dataset: Any) -> dict[str, float | None]:
+    """``trainer``'s held-out metrics at the dataset's held-out cameras mapped into its frame
+    by the similarity that aligns its (refined) training cameras to the dataset's."""
+    import dataclasses
+
+    import torch
+
+    from sparsesplat.engine.camera import Camera
+    from sparsesplat.engine.sfm.align import align
+
+    model = [c.world_to_camera.double().cpu().numpy() for c in trainer.training_cameras()]
+    ref = [v.camera.world_to_camera.double().numpy() for v in dataset.train]
+    sim = align(model, ref)  # the dataset's frame -> the model's
+    scored = trainer.recorder.scene
+    test = []
+    for view in scored.test:
+        old = view.camera
+        w2c = sim.map_world_to_camera(old.world_to_camera.double().numpy())
+        camera = Camera(torch.from_numpy(w2c).to(old.world_to_camera), old.fx, old.fy,
+                        old.cx, old.cy, old.width, old.height)  # fmt: skip
+        test.append(dataclasses.replace(view, camera=camera))
+    trainer.recorder.scene = dataclasses.replace(scored, test=test)
+    try:
+        return trainer.evaluate()
+    finally:
+        trainer.recorder.scene = scored
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -170,12 +218,17 @@ def main(argv: list[str] | None = None) -> int:
         "--given", action="store_true",
         help="with --train: estimate with the dataset's intrinsics held fixed",
     )  # fmt: skip
+    parser.add_argument(
+        "--runs", nargs="*", default=list(RUNS), choices=list(RUNS),
+        help="with --train: which runs to make",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
-            root / SCENES[args.train], args.iterations, args.threads, args.given
-        )
+            root / SCENES[args.train], args.iterations, args.threads, args.given,
+            tuple(args.runs),
+        )  # fmt: skip
         mode = "given" if args.given else "estimated"
         out = results_dir() / f"cameras-train-{args.train}-{mode}.json"
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -36,6 +36,7 @@ __all__ = [
     "OptimConfig",
     "PartnerDepthName",
     "PhotometricConfig",
+    "PoseConfig",
     "RecordConfig",
 ]
 """The sections and the names of their values: the package (``config/__init__.py``) re-exports
@@ -559,3 +560,37 @@ class NearPruneConfig:
             raise ConfigError(f"near_prune.radius must be > 0, got {self.radius}")
         if self.every < 1:
             raise ConfigError(f"near_prune.every must be >= 1, got {self.every}")
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """``poses``: refinement of the training cameras during training (``loop/poses.py``), for
+    cameras estimated from the photos, whose few tenths of a degree of error blur the model.
+    The first training camera keeps its pose (it fixes the frame); each other one learns a
+    small rigid correction from the photometric loss."""
+
+    enabled: bool = False
+    """Refine the training cameras' poses (off: the part is not built, nothing allocated)."""
+    lr: float = 3e-4
+    """Adam learning rate of the corrections (radians for the rotation, scene extents for the
+    shift), decaying log-linearly to 1 % of it at the end of the run."""
+    start: float = 0.1
+    """Fraction of the schedule before the corrections train (the first iterations' random
+    Gaussians carry no pose information)."""
+    max_rotation_deg: float = 5.0
+    """A correction larger than this stops the run (the cameras are wrong, not imprecise)."""
+    max_translation: float = 0.1
+    """Likewise for the shift, in scene extents."""
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.lr) and self.lr > 0.0):
+            raise ConfigError(f"poses.lr must be > 0, got {self.lr}")
+        if not (math.isfinite(self.start) and 0.0 <= self.start < 1.0):
+            raise ConfigError(f"poses.start must be in [0, 1), got {self.start}")
+        if not (math.isfinite(self.max_rotation_deg) and 0.0 < self.max_rotation_deg <= 90.0):
+            raise ConfigError(
+                f"poses.max_rotation_deg must be in (0, 90], got {self.max_rotation_deg}"
+            )
+        if not (math.isfinite(self.max_translation) and self.max_translation > 0.0):
+            raise ConfigError(f"poses.max_translation must be > 0, got {self.max_translation}")

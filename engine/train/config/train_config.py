@@ -28,6 +28,7 @@ from sparsesplat.engine.train.config.sections import (
     NearPruneConfig,
     OptimConfig,
     PhotometricConfig,
+    PoseConfig,
     RecordConfig,
 )
 from sparsesplat.engine.train.config.values import check_types
@@ -99,6 +100,8 @@ class TrainConfig:
     ``correspondence``)."""
     correspondence: CorrespondenceConfig = field(default_factory=CorrespondenceConfig)
     """The matched-depth term."""
+    poses: PoseConfig = field(default_factory=PoseConfig)
+    """Refinement of the training cameras."""
     raster: RasterConfig = field(default_factory=RasterConfig)
     """The rasterizer."""
     extra: dict[str, Any] = field(default_factory=dict)

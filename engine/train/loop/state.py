@@ -47,6 +47,7 @@ def trainer_state(t: Trainer) -> dict[str, Any]:
         **({"init_note": t.init_note} if t.init_note is not None else {}),
         **(t.near_prune.state_dict() if t.near_prune is not None else {}),
         **(t.consistency.state_dict() if t.consistency is not None else {}),
+        **(t.poses.state_dict() if t.poses is not None else {}),
         "records": list(t.records),
     }
 
@@ -77,5 +78,7 @@ def restore_trainer(t: Trainer, state: dict[str, Any]) -> None:
         t.near_prune.load_state_dict(state)
     if t.consistency is not None:
         t.consistency.load_state_dict(state)
+    if t.poses is not None:
+        t.poses.load_state_dict(state)
     t.recorder.records = list(state["records"])
     t.clock.start(t.elapsed_s, t.iteration)

@@ -81,6 +81,7 @@ from sparsesplat.engine.train.loop.densify import DensifyStrategy, ModelCollapse
 from sparsesplat.engine.train.loop.guard import DivergenceGuard
 from sparsesplat.engine.train.loop.optimizer import make_optimizer, set_position_lr
 from sparsesplat.engine.train.loop.parts import StageTimer, TrainView
+from sparsesplat.engine.train.loop.poses import PoseRefinement
 from sparsesplat.engine.train.loop.progress import (
     ProgressCallback,
     ProgressRecord,
@@ -199,6 +200,10 @@ class Trainer:
             self.correspondence = CorrespondenceTerm(
                 cfg.correspondence, self.matches, self.cameras, clock
             )
+        self.poses: PoseRefinement | None = None
+        """The training cameras' refinement; None unless ``poses.enabled``."""
+        if cfg.poses.enabled and len(self.cameras) > 1:
+            self.poses = PoseRefinement(cfg.poses, self.cameras, self.extent, clock)
         self.near_prune: NearPrune | None = None
         """Near-plane pruning; None unless ``near_prune.enabled``."""
         if cfg.near_prune.enabled:
@@ -315,6 +320,10 @@ class Trainer:
         """Mean held-out metrics (all None when the scene has no held-out views)."""
         return self.recorder.evaluate(self.gaussians, self.color, max_views)
 
+    def training_cameras(self) -> list[Camera]:
+        """The training cameras as trained: refined when ``poses.enabled``."""
+        return self.cameras if self.poses is None else self.poses.refined()
+
     # -- rendering ---------------------------------------------------------------------------
     def render(self, camera: Camera, background: Tensor | None = None) -> RasterOutput:
         """Render the current model through ``camera`` without gradients."""
@@ -362,7 +371,8 @@ class Trainer:
         if not self.view_stack:
             self.view_stack = torch.randperm(len(self.cameras), generator=self.generator).tolist()
         i = self.view_stack.pop()
-        return TrainView(i, self.cameras[i], self.images[i], self.ssim_targets[i])
+        camera = self.cameras[i] if self.poses is None else self.poses.camera(i)
+        return TrainView(i, camera, self.images[i], self.ssim_targets[i])
 
     def _photometric_loss(self, image: Tensor, view: TrainView) -> tuple[Tensor, Tensor]:
         """(total, photometric): L1 + λ·D-SSIM plus DNGaussian's shape/scale/opacity terms."""
@@ -417,8 +427,12 @@ class Trainer:
                 drop.opacity_logits(g.opacity_logits),
                 leaf,
             )
+        camera = view.camera
+        if self.poses is not None:  # the refined camera: the Gaussians moved, the pose as given
+            means, quats = self.poses.move(view.index, inputs[0], inputs[2])
+            inputs, camera = (means, inputs[1], quats, *inputs[3:]), self.cameras[view.index]
         fused_soft = self.depth is not None and self.depth.wants_fused_soft(it, view)
-        out = self._raster(*inputs, view.camera, self.background, opacity_depth=fused_soft)
+        out = self._raster(*inputs, camera, self.background, opacity_depth=fused_soft)
         timer.tick("photo_render")
         loss, photo = self._photometric_loss(out.image, view)
         timer.tick("losses")
@@ -445,6 +459,8 @@ class Trainer:
             colors.backward(leaf.grad)
             timer.tick("neural_bwd")
         self.recorder.add_train_loss(float(photo.detach()))
+        if self.poses is not None:
+            self.poses.step(it)
         if drop is not None:
             out = scatter_output(drop, out)
 
@@ -557,6 +573,8 @@ class Trainer:
                 )
         if self.near_prune is not None:
             metrics["near_pruned"] = self.near_prune.pruned
+        if self.poses is not None:
+            metrics["pose_refinement"] = self.poses.summary()
         if self.depth_agreement is not None:
             metrics["depth_agreement"] = json_safe(self.depth_agreement)
             metrics["depth_views"] = sorted(self.depth.views or []) if self.depth else []
@@ -566,7 +584,7 @@ class Trainer:
             artifacts["checkpoint"] = self.save_checkpoint()
             artifacts.update(
                 self.recorder.write_outputs(
-                    metrics, self.gaussians, self.color, self.cameras, stopped
+                    metrics, self.gaussians, self.color, self.training_cameras(), stopped
                 )
             )
         self._emit(StateChange("stopped" if stopped else "finished", self.iteration))

@@ -42,6 +42,9 @@ def _params(t: Trainer) -> dict[str, torch.Tensor]:
     out = {k: v.detach().clone() for k, v in t.gaussians.params.items()}
     if hasattr(t.color, "field"):
         out.update({f"field.{k}": v.clone() for k, v in t.color.field.state_dict().items()})
+    if t.poses is not None:
+        out.update({"poses.rotation": t.poses.rotation.detach().clone(),
+                    "poses.translation": t.poses.translation.detach().clone()})  # fmt: skip
     return out
 
 
@@ -104,6 +107,8 @@ RESUME_PARTS: dict[str, dict[str, Any]] = {
         "consistency_start": 0,
         "consistency.partner_depth": "last",
     },
+    # The cameras' corrections and their optimizer are state.
+    "poses": {"poses.enabled": True, "poses.start": 0.0},
 }
 
 
