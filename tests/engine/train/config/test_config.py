@@ -30,6 +30,11 @@ _NEW_FIELDS = {
     "correspondence.pixel_error",
     "correspondence.min_alpha",
     "correspondence.max_error",
+    "poses.enabled",
+    "poses.lr",
+    "poses.start",
+    "poses.max_rotation_deg",
+    "poses.max_translation",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 
