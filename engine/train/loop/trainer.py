@@ -39,6 +39,7 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -54,7 +55,6 @@ from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.models import ColorModel
 from sparsesplat.engine.denormals import flush_denormals
 from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
-from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import (
     opacity_regularizer,
     photometric_loss,
@@ -465,8 +465,11 @@ class Trainer:
             out = scatter_output(drop, out)
 
         if self.densify is not None:
+            center = view.camera.center
+            colors_seen = functools.partial(self.color.colors, camera_center=center)
+            rule = None if self.dtu is None else self.dtu.densify_rule(it, colors_seen)
             self.densify.step_post_backward(
-                it, g, opt, out, view.camera, cleaned, self.extent, timer, self._black_white(view)
+                it, g, opt, out, view.camera, cleaned, self.extent, timer, rule
             )
         if self.near_prune is not None:
             self.near_prune.step(it, g, opt)
@@ -478,19 +481,6 @@ class Trainer:
         if decay < 1.0 and self.clock.position(it) < cfg.densify.until:
             g.decay_opacity(decay)
         timer.tick("optimizer")
-
-    def _black_white(self, view: TrainView) -> Callable[[Gaussians], None] | None:
-        """The DTU black/white rule for the densification step, when on."""
-        dtu = self.dtu
-        if dtu is None or not dtu.settings.black_white:
-            return None
-        it, center = self.iteration, view.camera.center
-
-        def rule(g: Gaussians) -> None:
-            with torch.no_grad():
-                dtu.black_white(it, g, self.color.colors(g, center))
-
-        return rule
 
     def run(self) -> TrainResult:
         """Train to ``config.iterations`` (or sooner, at ``config.time_limit_s``), or under

@@ -39,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -289,6 +290,21 @@ class DtuBackground:
         loss.backward()
         finish_auxiliary_pass(optimizer, self.joint)
         timer.tick("dtu_alpha")
+
+    def densify_rule(
+        self, iteration: int, colors: Callable[[Gaussians], Tensor]
+    ) -> Callable[[Gaussians], None] | None:
+        """The black/white rule for this iteration's densification step (None when
+        ``dtu.black_white`` is off); ``colors`` gives the Gaussians' colours seen from this
+        iteration's camera."""
+        if not self.settings.black_white:
+            return None
+
+        def rule(g: Gaussians) -> None:
+            with torch.no_grad():
+                self.black_white(iteration, g, colors(g))
+
+        return rule
 
     def black_white(self, iteration: int, gaussians: Gaussians, colors: Tensor) -> None:
         """Apply :func:`black_white_rule` for ``colors`` (N, 3), the Gaussians' colours seen
