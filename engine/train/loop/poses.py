@@ -36,6 +36,7 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import TrainingDiverged
+from sparsesplat.engine.raster.projection import quat_to_rotmat
 from sparsesplat.engine.train.config import PoseConfig
 from sparsesplat.engine.train.loop.schedule import ScheduleClock, log_linear
 
@@ -56,18 +57,6 @@ def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
         ],
         dim=-1,
     )
-
-
-def quat_to_matrix(q: Tensor) -> Tensor:
-    """(..., 4) wxyz quaternion (any non-zero norm) to its (..., 3, 3) rotation matrix."""
-    q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]  # fmt: skip
-    return torch.stack(rows, dim=-1).reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quat(r: Tensor) -> Tensor:
@@ -120,7 +109,7 @@ class PoseRefinement:
         """Camera ``index``'s correction as (quaternion (4,), rotation (3, 3), shift (3,)) in
         its camera frame (world units)."""
         half = torch.cat([self.rotation.new_ones(1), self.rotation[index] / 2])
-        return half, quat_to_matrix(half), self.translation[index] * self.extent
+        return half, quat_to_rotmat(half), self.translation[index] * self.extent
 
     def active(self, position: float) -> bool:
         """Whether the corrections train at schedule ``position``."""

@@ -11,12 +11,9 @@ import torch
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.errors import TrainingDiverged
 from sparsesplat.engine.raster import rasterize
+from sparsesplat.engine.raster.projection import quat_to_rotmat
 from sparsesplat.engine.train.config import PoseConfig
-from sparsesplat.engine.train.loop.poses import (
-    PoseRefinement,
-    matrix_to_quat,
-    quat_to_matrix,
-)
+from sparsesplat.engine.train.loop.poses import PoseRefinement, matrix_to_quat
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
 from tests.engine.numerics import UNIT_ROUNDOFF
 from tests.engine.train.plane_scene import camera
@@ -24,18 +21,18 @@ from tests.engine.train.plane_scene import camera
 
 def _random_rotation(g: torch.Generator) -> torch.Tensor:
     q = torch.randn(4, generator=g, dtype=torch.float64)
-    return quat_to_matrix(q)
+    return quat_to_rotmat(q)
 
 
 def _rotation_about(axis: tuple[float, float, float], degrees: float) -> torch.Tensor:
     a = torch.tensor(axis, dtype=torch.float64)
     a = a / a.norm()
     half = math.radians(degrees) / 2
-    return quat_to_matrix(torch.cat([torch.tensor([math.cos(half)]), math.sin(half) * a]))
+    return quat_to_rotmat(torch.cat([torch.tensor([math.cos(half)]), math.sin(half) * a]))
 
 
 @pytest.mark.parametrize("case", ["random", "near_180", "identity"])
-def test_matrix_to_quat_inverts_quat_to_matrix(seed: int, case: str) -> None:
+def test_matrix_to_quat_inverts_quat_to_rotmat(seed: int, case: str) -> None:
     g = torch.Generator().manual_seed(seed)
     if case == "random":
         r = _random_rotation(g)
@@ -43,7 +40,7 @@ def test_matrix_to_quat_inverts_quat_to_matrix(seed: int, case: str) -> None:
         r = _rotation_about(tuple(torch.randn(3, generator=g).tolist()), 179.999)
     else:
         r = torch.eye(4, dtype=torch.float64)[:3, :3]
-    back = quat_to_matrix(matrix_to_quat(r))
+    back = quat_to_rotmat(matrix_to_quat(r))
     # A few dozen roundings per entry, each at most the unit roundoff of values <= 1.
     assert torch.allclose(back, r, rtol=0, atol=64 * UNIT_ROUNDOFF)
 
@@ -70,8 +67,8 @@ def test_moving_the_gaussians_is_rendering_through_the_refined_camera(seed: int)
         seen_refined = means @ refined[:3, :3].T + refined[:3, 3]
         # Centres of size ~6 through three rigid maps: a few dozen roundings of that size.
         assert torch.allclose(seen_moved, seen_refined, rtol=0, atol=6 * 64 * UNIT_ROUNDOFF)
-        rot_moved = given[:3, :3] @ quat_to_matrix(moved_quats)
-        rot_refined = refined[:3, :3] @ quat_to_matrix(quats)
+        rot_moved = given[:3, :3] @ quat_to_rotmat(moved_quats)
+        rot_refined = refined[:3, :3] @ quat_to_rotmat(quats)
         assert torch.allclose(rot_moved, rot_refined, rtol=0, atol=64 * UNIT_ROUNDOFF)
     # The first camera fixes the frame: it is never corrected.
     assert torch.equal(poses.camera(0).world_to_camera, cams[0].world_to_camera)
