@@ -4,6 +4,7 @@ writer of the render worker and the local ``render`` command."""
 from __future__ import annotations
 
 import io
+import zlib
 from typing import Any
 
 import numpy as np
@@ -21,8 +22,14 @@ def expected_depth(depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
 
 
 def rgb8(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) colours in [0, 1] -> uint8, clipped and rounded to the nearest level."""
-    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    """(H, W, 3) colours in [0, 1] -> uint8, clipped and rounded to the nearest level; a
+    C-contiguous (row-major) array, what the image writers read."""
+    # The scaling works in place on the clip's copy, in the render's own memory order (its
+    # image is a (3, H, W) tensor seen as (H, W, 3)); the one transposing pass is the cast.
+    scaled = np.clip(image, 0.0, 1.0)
+    scaled *= 255.0
+    scaled += 0.5
+    return scaled.astype(np.uint8, order="C")
 
 
 def encode_image(image: np.ndarray, fmt: str, **options: Any) -> bytes:
@@ -36,6 +43,54 @@ def encode_image(image: np.ndarray, fmt: str, **options: Any) -> bytes:
     return buffer.getvalue()
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_FILTER_UP = 2
+"""PNG filter type 2: each byte minus the byte above it (the first row: minus zero)."""
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    crc = zlib.crc32(data, zlib.crc32(kind))
+    return len(data).to_bytes(4, "big") + kind + data + crc.to_bytes(4, "big")
+
+
+def encode_png(pixels: np.ndarray) -> bytes:
+    """A PNG of 8-bit ``pixels``: (H, W) grey or (H, W, 3) RGB, written for latency.
+
+    The service's PNG writer (a render's PNG is on every request's critical path). Every row is
+    'Up'-filtered in one numpy subtraction and the filtered rows are deflated once by zlib with
+    its run-length strategy. Pillow at ``compress_level=1`` took 11-16 ms on a 504x378 render
+    (it picks a filter per row by trying all five, then runs zlib's fastest level); this takes
+    about 5 ms there and writes 10-20% fewer bytes, and it stays fast on the worst cases: a
+    mostly empty frame (zero rows become runs) and noise (RLE finds nothing to search for).
+    What it gives up: long-distance matches, so a synthetic pattern that repeats along a row
+    (a sawtooth ramp) stays larger than Pillow writes it. Lossless: a decoder returns exactly
+    ``pixels``.
+    """
+    if (
+        pixels.dtype != np.uint8
+        or pixels.ndim not in (2, 3)
+        or (pixels.ndim == 3 and pixels.shape[2] != 3)
+    ):
+        raise ValueError(f"uint8 (H, W) or (H, W, 3) pixels expected, got {pixels.dtype} "
+                         f"{pixels.shape}")  # fmt: skip
+    height, width = pixels.shape[:2]
+    if height == 0 or width == 0:
+        raise ValueError("a PNG needs at least one pixel")
+    rows = np.ascontiguousarray(pixels).reshape(height, -1)
+    filtered = np.empty((height, rows.shape[1] + 1), dtype=np.uint8)
+    filtered[:, 0] = _PNG_FILTER_UP
+    filtered[0, 1:] = rows[0]
+    np.subtract(rows[1:], rows[:-1], out=filtered[1:, 1:])  # uint8: wraps modulo 256, as PNG's
+    # Z_RLE only looks for repeats of the previous byte: after the Up filter that is what an
+    # image has (flat and smooth areas become runs of zeros); the level does not change it.
+    deflate = zlib.compressobj(1, zlib.DEFLATED, 15, 8, zlib.Z_RLE)
+    data = deflate.compress(filtered.data) + deflate.flush()
+    colour_type = 2 if pixels.ndim == 3 else 0  # truecolour or greyscale, 8 bits, no interlace
+    header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, colour_type, 0, 0, 0])
+    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", header), _png_chunk(b"IDAT", data),
+                     _png_chunk(b"IEND", b"")))  # fmt: skip
+
+
 def encode(
     output: str, image: np.ndarray, depth: np.ndarray, alpha: np.ndarray, quality: int
 ) -> bytes:
@@ -46,11 +101,12 @@ def encode(
     from PIL import Image
 
     buffer = io.BytesIO()
-    if output in ("png", "jpeg", "webp"):
-        # Chosen for latency: zlib level 1 (level 0 is barely faster and ~10x larger); WebP's
-        # fastest method (about 5x faster to encode than its default, a little larger).
+    if output == "png":
+        return encode_png(rgb8(image))
+    if output in ("jpeg", "webp"):
+        # Chosen for latency: WebP's fastest method (about 5x faster to encode than its
+        # default, a little larger).
         options: dict[str, Any] = {
-            "png": {"compress_level": 1},
             "jpeg": {"quality": quality},
             "webp": {"quality": quality, "method": 0},
         }[output]
@@ -61,8 +117,7 @@ def encode(
     elif output == "npy":
         np.save(buffer, expected_depth(depth, alpha), allow_pickle=False)
     elif output == "alpha":
-        a = (np.clip(alpha, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        Image.fromarray(a).save(buffer, format="PNG", compress_level=1)
+        return encode_png((np.clip(alpha, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
     else:
         raise ValueError(f"unknown render output {output!r}")
     return buffer.getvalue()

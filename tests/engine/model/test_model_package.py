@@ -11,13 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 import torch
 from PIL import Image
 
 from sparsesplat.api.renders import EMPTY_RENDER_COVERAGE, empty_renders
 from sparsesplat.engine.color.models import SHColor
 from sparsesplat.engine.model import CHECKPOINT_NAME, save_checkpoint
-from sparsesplat.engine.model.encode import encode, encode_image
+from sparsesplat.engine.model.encode import encode, encode_image, encode_png
 from sparsesplat.engine.model.raster import RasterConfig, stored_raster_config
 from sparsesplat.engine.train.config import TrainConfig
 from sparsesplat.engine.train.config.overrides import FLAT_NAMES
@@ -106,7 +107,48 @@ def test_one_image_writer_with_each_callers_settings() -> None:
     buffer = io.BytesIO()
     Image.fromarray(rgb).save(buffer, format="PNG")
     assert encode_image(image, "png") == buffer.getvalue()
-    # The service's PNG: the same pixels at its faster compression.
+    # The service's PNG: its own writer (encode_png), the same pixels.
     served = encode("png", image, np.zeros((9, 7)), np.ones((9, 7)), 90)
-    assert served == encode_image(image, "png", compress_level=1)
+    assert served == encode_png(rgb)
     assert np.array_equal(np.asarray(Image.open(io.BytesIO(served))), rgb)
+    # A render's image is a (3, H, W) tensor seen as (H, W, 3): the same bytes from that view.
+    planes = np.ascontiguousarray(image.transpose(2, 0, 1))
+    assert encode("png", planes.transpose(1, 2, 0), np.zeros((9, 7)), np.ones((9, 7)), 90) == served
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 5, 3), (6, 1, 3), (37, 29), (64, 48, 3)])
+def test_the_service_png_writer_is_lossless(shape: tuple[int, ...]) -> None:
+    """encode_png's files decode (Pillow, with its CRC checks) to exactly the pixels given, grey
+    and RGB, at any size including one row or one column."""
+    pixels = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    image = Image.open(io.BytesIO(encode_png(pixels)))
+    image.load()
+    assert image.mode == ("RGB" if len(shape) == 3 else "L")
+    assert image.size == (shape[1], shape[0])
+    assert np.array_equal(np.asarray(image), pixels)
+
+
+def test_the_service_png_writer_compresses_a_mostly_empty_frame() -> None:
+    """A render that sees little (a flat background around a small patch) comes out far
+    smaller than its raw pixels: the filtered zero rows deflate to runs."""
+    flat = np.zeros((378, 504, 3), dtype=np.uint8)
+    flat[100:200, 100:300] = np.random.default_rng(2).integers(0, 256, (100, 200, 3))
+    assert len(encode_png(flat)) < 100 * 200 * 3 + 571_536 // 50
+
+
+def test_the_service_png_writer_refuses_what_it_cannot_write() -> None:
+    with pytest.raises(ValueError, match="uint8"):
+        encode_png(np.zeros((4, 4, 3), dtype=np.float32))
+    with pytest.raises(ValueError, match="uint8"):
+        encode_png(np.zeros((4, 4, 4), dtype=np.uint8))
+    with pytest.raises(ValueError, match="one pixel"):
+        encode_png(np.zeros((0, 4), dtype=np.uint8))
+
+
+def test_the_alpha_output_is_an_8_bit_grey_png_of_the_coverage() -> None:
+    alpha = np.linspace(-0.2, 1.2, 63, dtype=np.float32).reshape(9, 7)
+    served = encode("alpha", np.zeros((9, 7, 3)), np.zeros((9, 7)), alpha, 90)
+    image = Image.open(io.BytesIO(served))
+    assert image.mode == "L"
+    expected = (np.clip(alpha, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    assert np.array_equal(np.asarray(image), expected)
