@@ -4,7 +4,9 @@ writer of the render worker and the local ``render`` command."""
 from __future__ import annotations
 
 import io
+import threading
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -48,6 +50,45 @@ _PNG_FILTER_UP = 2
 """PNG filter type 2: each byte minus the byte above it (the first row: minus zero)."""
 
 
+PNG_SPLIT_BYTES = 256 * 1024
+"""Filtered images at least this large are deflated in two halves at once (see
+:func:`_deflate`); below it the second thread's hand-off costs about what it saves."""
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _deflate_pool() -> ThreadPoolExecutor:
+    """The one helper thread of the split deflate, started on first use."""
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="png-deflate")
+        return _pool
+
+
+def _deflate_part(data: memoryview, last: bool) -> bytes:
+    """Raw deflate of ``data`` (Z_RLE; see :func:`encode_png`); a part that is not ``last``
+    ends byte-aligned on a sync flush, so that the next part's blocks can follow it."""
+    deflate = zlib.compressobj(1, zlib.DEFLATED, -15, 8, zlib.Z_RLE)
+    return deflate.compress(data) + deflate.flush(zlib.Z_FINISH if last else zlib.Z_SYNC_FLUSH)
+
+
+def _deflate(data: memoryview) -> bytes:
+    """The zlib stream of ``data``: large inputs as two raw deflate streams made at once on
+    two threads (zlib releases the GIL) and joined as pigz joins them, between the zlib header
+    and the Adler-32 of the whole. The render worker's threads are idle while it encodes:
+    on a 504x378 render the halves take about half of the 4-5 ms of one pass."""
+    if len(data) < PNG_SPLIT_BYTES:
+        deflate = zlib.compressobj(1, zlib.DEFLATED, 15, 8, zlib.Z_RLE)
+        return deflate.compress(data) + deflate.flush()
+    half = len(data) // 2
+    first = _deflate_pool().submit(_deflate_part, data[:half], False)
+    second = _deflate_part(data[half:], True)
+    checksum = zlib.adler32(data)
+    # 0x78 0x01: deflate with a 32 KB window, the "fastest" level hint, header check bits.
+    return b"\x78\x01" + first.result() + second + checksum.to_bytes(4, "big")
+
+
 def _png_chunk(kind: bytes, data: bytes) -> bytes:
     crc = zlib.crc32(data, zlib.crc32(kind))
     return len(data).to_bytes(4, "big") + kind + data + crc.to_bytes(4, "big")
@@ -83,8 +124,7 @@ def encode_png(pixels: np.ndarray) -> bytes:
     np.subtract(rows[1:], rows[:-1], out=filtered[1:, 1:])  # uint8: wraps modulo 256, as PNG's
     # Z_RLE only looks for repeats of the previous byte: after the Up filter that is what an
     # image has (flat and smooth areas become runs of zeros); the level does not change it.
-    deflate = zlib.compressobj(1, zlib.DEFLATED, 15, 8, zlib.Z_RLE)
-    data = deflate.compress(filtered.data) + deflate.flush()
+    data = _deflate(filtered.data.cast("B"))
     colour_type = 2 if pixels.ndim == 3 else 0  # truecolour or greyscale, 8 bits, no interlace
     header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, colour_type, 0, 0, 0])
     return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", header), _png_chunk(b"IDAT", data),

@@ -18,6 +18,7 @@ from PIL import Image
 from sparsesplat.api.renders import EMPTY_RENDER_COVERAGE, empty_renders
 from sparsesplat.engine.color.models import SHColor
 from sparsesplat.engine.model import CHECKPOINT_NAME, save_checkpoint
+from sparsesplat.engine.model import encode as encode_module
 from sparsesplat.engine.model.encode import encode, encode_image, encode_png
 from sparsesplat.engine.model.raster import RasterConfig, stored_raster_config
 from sparsesplat.engine.train.config import TrainConfig
@@ -116,11 +117,19 @@ def test_one_image_writer_with_each_callers_settings() -> None:
     assert encode("png", planes.transpose(1, 2, 0), np.zeros((9, 7)), np.ones((9, 7)), 90) == served
 
 
-@pytest.mark.parametrize("shape", [(1, 1), (1, 5, 3), (6, 1, 3), (37, 29), (64, 48, 3)])
-def test_the_service_png_writer_is_lossless(shape: tuple[int, ...]) -> None:
+@pytest.mark.parametrize("split", [False, True])
+@pytest.mark.parametrize(
+    "shape", [(1, 1), (1, 5, 3), (6, 1, 3), (37, 29), (64, 48, 3), (378, 504, 3)]
+)
+def test_the_service_png_writer_is_lossless(
+    shape: tuple[int, ...], split: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """encode_png's files decode (Pillow, with its CRC checks) to exactly the pixels given, grey
-    and RGB, at any size including one row or one column."""
+    and RGB, at any size including one row or one column, deflated in one pass or (the large
+    images' way) in two halves joined, here also for the smallest images."""
+    monkeypatch.setattr(encode_module, "PNG_SPLIT_BYTES", 1 if split else 2**40)
     pixels = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    pixels[: shape[0] // 2] //= 32  # a smoother half: runs for the deflate to find
     image = Image.open(io.BytesIO(encode_png(pixels)))
     image.load()
     assert image.mode == ("RGB" if len(shape) == 3 else "L")
