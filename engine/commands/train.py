@@ -43,10 +43,10 @@ _PRESET_HELP = {
     "dtu": "DTU scans (cameras_sphere.npz): the paper's DTU recipe, 3 views, "
     "opacity decay 0.998; 1500 iterations",
     "blender": "NeRF-synthetic scenes (transforms_train.json): white background, [-1, 1]^3 box, "
-    "opacity decay 0.995; 4500 iterations",
+    "opacity decay 0.995; 6000 iterations",
     "object": "an object on an empty background (images with alpha, or a plain white/black "
     "backdrop), any unit: the Blender recipe with the init box from the cameras; "
-    "4500 iterations",
+    "6000 iterations",
     "default": "photos of textured surroundings, forward-facing or inward-looking: the LLFF "
     "recipe (forward-facing: from the plane-sweep point cloud, 3000 iterations; otherwise "
     "with opacity decay, 5000 iterations)",
