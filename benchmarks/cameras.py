@@ -100,7 +100,6 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
 
     import torch
 
-    from sparsesplat.engine.camera import Camera
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 
     est = [np.linalg.inv(np.array(f.matrix)) for f in estimate.cameras.frames]
@@ -110,12 +109,8 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
     back = sim.inverse()  # the estimated frame -> the dataset's
     train = []
     for view, w2c_est, frame in zip(scene.train, est, estimate.cameras.frames, strict=True):
-        w2c = back.map_world_to_camera(w2c_est)
-        old = view.camera
-        camera = Camera(
-            torch.from_numpy(w2c).to(old.world_to_camera), frame.fx, frame.fy, frame.cx,
-            frame.cy, old.width, old.height,
-        )  # fmt: skip
+        camera = _posed(view.camera, back.map_world_to_camera(w2c_est),
+                        (frame.fx, frame.fy, frame.cx, frame.cy))  # fmt: skip
         train.append(dataclasses.replace(view, camera=camera))
     points = back.map_points(estimate.points.astype(np.float64))
     sparse = (torch.from_numpy(points).float(), torch.from_numpy(estimate.colours).float())
@@ -179,15 +174,33 @@ def train_comparison(
     return rows
 
 
-def refined_errors(trainer: Any, dataset: Any) -> dict[str, float]:
-    """Median and largest rotation error (degrees) of ``trainer``'s refined training cameras
-    against the dataset's after a similarity alignment (as :func:`measure` scores the
-    estimate itself)."""
+def _posed(old: Any, w2c: np.ndarray, intrinsics: tuple[float, float, float, float]) -> Any:
+    """The engine camera ``old`` with the world-to-camera ``w2c`` (float64 NumPy, cast to
+    ``old``'s pose dtype and device) and the pinhole ``intrinsics`` (fx, fy, cx, cy)."""
+    import torch
+
+    from sparsesplat.engine.camera import Camera
+
+    pose = torch.from_numpy(w2c).to(old.world_to_camera)
+    return Camera(pose, *intrinsics, old.width, old.height)
+
+
+def _refined_alignment(trainer: Any, dataset: Any) -> tuple[Any, list[float]]:
+    """The similarity taking the dataset's frame to ``trainer``'s (aligning its refined
+    training cameras to the dataset's), and each refined camera's rotation error (degrees)."""
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 
     model = [c.world_to_camera.double().cpu().numpy() for c in trainer.training_cameras()]
     ref = [v.camera.world_to_camera.double().numpy() for v in dataset.train]
-    errors = rotation_errors_deg(model, ref, align(model, ref))
+    sim = align(model, ref)
+    return sim, rotation_errors_deg(model, ref, sim)
+
+
+def refined_errors(trainer: Any, dataset: Any) -> dict[str, float]:
+    """Median and largest rotation error (degrees) of ``trainer``'s refined training cameras
+    against the dataset's after a similarity alignment (as :func:`measure` scores the
+    estimate itself)."""
+    errors = _refined_alignment(trainer, dataset)[1]
     return {"median_deg": float(np.median(errors)), "max_deg": float(np.max(errors))}
 
 
@@ -196,21 +209,13 @@ def realigned_metrics(trainer: Any, dataset: Any) -> dict[str, float | None]:
     by the similarity that aligns its (refined) training cameras to the dataset's."""
     import dataclasses
 
-    import torch
-
-    from sparsesplat.engine.camera import Camera
-    from sparsesplat.engine.sfm.align import align
-
-    model = [c.world_to_camera.double().cpu().numpy() for c in trainer.training_cameras()]
-    ref = [v.camera.world_to_camera.double().numpy() for v in dataset.train]
-    sim = align(model, ref)  # the dataset's frame -> the model's
+    sim = _refined_alignment(trainer, dataset)[0]
     scored = trainer.recorder.scene
     test = []
     for view in scored.test:
         old = view.camera
         w2c = sim.map_world_to_camera(old.world_to_camera.double().numpy())
-        camera = Camera(torch.from_numpy(w2c).to(old.world_to_camera), old.fx, old.fy,
-                        old.cx, old.cy, old.width, old.height)  # fmt: skip
+        camera = _posed(old, w2c, (old.fx, old.fy, old.cx, old.cy))
         test.append(dataclasses.replace(view, camera=camera))
     trainer.recorder.scene = dataclasses.replace(scored, test=test)
     try:

@@ -465,9 +465,10 @@ class Trainer:
             out = scatter_output(drop, out)
 
         if self.densify is not None:
-            center = view.camera.center
-            colors_seen = functools.partial(self.color.colors, camera_center=center)
-            rule = None if self.dtu is None else self.dtu.densify_rule(it, colors_seen)
+            rule = None
+            if self.dtu is not None:
+                seen = functools.partial(self.color.colors, camera_center=view.camera.center)
+                rule = self.dtu.densify_rule(it, seen)
             self.densify.step_post_backward(
                 it, g, opt, out, view.camera, cleaned, self.extent, timer, rule
             )
