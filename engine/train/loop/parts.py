@@ -33,12 +33,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.losses import SSIMTarget
+
+if TYPE_CHECKING:
+    from sparsesplat.engine.gaussians import Gaussians
+    from sparsesplat.engine.train.loop.guard import DivergenceGuard
 
 
 @dataclass
@@ -79,10 +84,35 @@ class StageTimer:
             self._last = now
 
 
-def finish_auxiliary_pass(optimizer: torch.optim.Optimizer, joint: bool) -> None:
-    """End an auxiliary pass whose backward has run: its own optimizer step (and cleared
-    gradients) when passes step separately; nothing when ``joint``, so its gradients wait in
-    ``.grad`` and join the photometric step."""
+@dataclass(frozen=True)
+class AuxiliaryStep:
+    """What an auxiliary pass before the photometric step (the depth passes, the DTU
+    background-alpha pass) works on in one iteration: one object, so every such hook takes the
+    same argument and the loop builds it once."""
+
+    iteration: int
+    """The 1-based iteration."""
+    gaussians: Gaussians
+    """The run's Gaussians (replaced by densification and checkpoint loads, so never kept)."""
+    optimizer: torch.optim.Optimizer
+    """The run's shared Adam optimizer."""
+    view: TrainView
+    """The iteration's training view (after ``dtu.adjust_view``)."""
+    extent: float
+    """The scene extent."""
+    guard: DivergenceGuard
+    """The divergence checks each pass's loss goes through."""
+    timer: StageTimer
+    """The stage timer the passes report to."""
+
+
+def finish_auxiliary_pass(step: AuxiliaryStep, loss: Tensor, what: str, joint: bool) -> None:
+    """End an auxiliary pass whose ``loss`` is computed: check it is finite (``what`` names it
+    in the error), run its backward, then take its own optimizer step (and clear the
+    gradients) when passes step separately; nothing more when ``joint``, so its gradients wait
+    in ``.grad`` and join the photometric step."""
+    step.guard.check_finite(loss.detach(), what, step.iteration)
+    loss.backward()
     if not joint:
-        optimizer.step()
-        optimizer.zero_grad(set_to_none=True)
+        step.optimizer.step()
+        step.optimizer.zero_grad(set_to_none=True)

@@ -80,7 +80,7 @@ from sparsesplat.engine.train.loop.data import run_data
 from sparsesplat.engine.train.loop.densify import DensifyStrategy, ModelCollapsed
 from sparsesplat.engine.train.loop.guard import DivergenceGuard
 from sparsesplat.engine.train.loop.optimizer import make_optimizer, set_position_lr
-from sparsesplat.engine.train.loop.parts import StageTimer, TrainView
+from sparsesplat.engine.train.loop.parts import AuxiliaryStep, StageTimer, TrainView
 from sparsesplat.engine.train.loop.poses import PoseRefinement
 from sparsesplat.engine.train.loop.progress import (
     ProgressCallback,
@@ -405,10 +405,11 @@ class Trainer:
         timer.tick("setup")
 
         # Passes 1 and 2: hard and soft depth, each with its own optimizer step.
+        aux = AuxiliaryStep(it, g, opt, view, self.extent, self.guard, timer)
         if self.depth is not None:
-            self.depth.step_pre_photometric(it, g, opt, view, self.extent, self.guard, timer)
+            self.depth.step_pre_photometric(aux)
         if self.dtu is not None:  # DTU background alpha, own optimizer step
-            self.dtu.step_pre_photometric(it, g, opt, view, self.guard, timer)
+            self.dtu.step_pre_photometric(aux)
 
         # Pass 3: photometric. Only the Gaussians DropGaussian keeps are coloured and rendered.
         drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None

@@ -26,16 +26,11 @@ from torch import Tensor
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets.common import camera_layout
 from sparsesplat.engine.errors import SceneError
-from sparsesplat.engine.gaussians import Gaussians, inverse_sigmoid
+from sparsesplat.engine.gaussians import inverse_sigmoid
 from sparsesplat.engine.losses import DepthTarget, edge_aware_smoothness, global_local_depth_loss
 from sparsesplat.engine.model.raster import Raster
 from sparsesplat.engine.train.config import DepthConfig
-from sparsesplat.engine.train.loop.guard import DivergenceGuard
-from sparsesplat.engine.train.loop.parts import (
-    StageTimer,
-    TrainView,
-    finish_auxiliary_pass,
-)
+from sparsesplat.engine.train.loop.parts import AuxiliaryStep, TrainView, finish_auxiliary_pass
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
 from sparsesplat.engine.train.regularizers.dtu_background import fill_background_depth
 
@@ -180,19 +175,11 @@ class DepthRegularizer:
         self.hard_ema: float | None = None
         """Running mean of the hard-depth loss (None before the first hard step)."""
 
-    def step_pre_photometric(
-        self,
-        iteration: int,
-        gaussians: Gaussians,
-        optimizer: torch.optim.Optimizer,
-        view: TrainView,
-        extent: float,
-        guard: DivergenceGuard,
-        timer: StageTimer,
-    ) -> None:
+    def step_pre_photometric(self, step: AuxiliaryStep) -> None:
         """The iteration's hard and soft passes, each with its own optimizer step (or, joint,
         its gradients left for the photometric step), when the schedules say so."""
-        s, g, pos = self.settings, gaussians, self.clock.position(iteration)
+        s, g, view, iteration = self.settings, step.gaussians, step.view, step.iteration
+        pos = self.clock.position(iteration)
         if not self._due(iteration, view):
             return
         n = len(g)
@@ -208,14 +195,12 @@ class DepthRegularizer:
                 g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, camera, None
             )
             hard_mask = mask if mask is None or level.downscale == 1 else _coarse_mask(mask, level)
-            loss = self.depth_loss(out.depth, view.index, iteration, extent, hard_mask, level)
-            guard.check_finite(loss.detach(), "the hard-depth loss", iteration)
-            loss.backward()
-            finish_auxiliary_pass(optimizer, self.joint)
+            loss = self.depth_loss(out.depth, view.index, iteration, step.extent, hard_mask, level)
+            finish_auxiliary_pass(step, loss, "the hard-depth loss", self.joint)
             hv = float(loss.detach())
             ema = self.hard_ema
             self.hard_ema = hv if ema is None else HARD_EMA_DECAY * ema + 0.1 * hv
-            timer.tick("hard_depth")
+            step.timer.tick("hard_depth")
         if self._soft_due(iteration) and not s.soft_fused:
             out = self.raster(
                 g.means.detach(),
@@ -226,11 +211,9 @@ class DepthRegularizer:
                 view.camera,
                 None,
             )
-            loss = self.depth_loss(out.depth, view.index, iteration, extent, mask)
-            guard.check_finite(loss.detach(), "the soft-depth loss", iteration)
-            loss.backward()
-            finish_auxiliary_pass(optimizer, self.joint)
-            timer.tick("soft_depth")
+            loss = self.depth_loss(out.depth, view.index, iteration, step.extent, mask)
+            finish_auxiliary_pass(step, loss, "the soft-depth loss", self.joint)
+            step.timer.tick("soft_depth")
 
     def _due(self, iteration: int, view: TrainView) -> bool:
         """Whether the depth schedule and the view's prior allow a depth term this iteration."""

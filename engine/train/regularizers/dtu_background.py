@@ -50,12 +50,7 @@ from sparsesplat.engine.gaussians import Gaussians
 from sparsesplat.engine.losses import SSIMTarget
 from sparsesplat.engine.model.raster import Raster
 from sparsesplat.engine.train.config import DtuConfig
-from sparsesplat.engine.train.loop.guard import DivergenceGuard
-from sparsesplat.engine.train.loop.parts import (
-    StageTimer,
-    TrainView,
-    finish_auxiliary_pass,
-)
+from sparsesplat.engine.train.loop.parts import AuxiliaryStep, TrainView, finish_auxiliary_pass
 
 
 @dataclass(frozen=True)
@@ -259,37 +254,27 @@ class DtuBackground:
             view, image=edit[0], ssim_target=edit[1], mask=self.masks[view.index]
         )
 
-    def step_pre_photometric(
-        self,
-        iteration: int,
-        gaussians: Gaussians,
-        optimizer: torch.optim.Optimizer,
-        view: TrainView,
-        guard: DivergenceGuard,
-        timer: StageTimer,
-    ) -> None:
+    def step_pre_photometric(self, step: AuxiliaryStep) -> None:
         """The background-alpha pass (real opacities, geometry detached: moves only opacities)
         with its own optimizer step (joint: its gradient left for the photometric step);
         skipped when off or when the view has no background (an empty mask gives no gradient,
         and an Adam step on zero gradients would still move)."""
-        mask = self.masks[view.index]
+        mask = self.masks[step.view.index]
         if not self.settings.alpha_loss or not bool(mask.any()):
             return
-        g = gaussians
+        g = step.gaussians
         out = self.raster(
             g.means.detach(),
             g.log_scales.detach(),
             g.quats.detach(),
             g.opacity_logits,
             g.means.new_zeros(len(g), 0),
-            view.camera,
+            step.view.camera,
             None,
         )
         loss = background_alpha_loss(out.alpha, mask)
-        guard.check_finite(loss.detach(), "the DTU background-alpha loss", iteration)
-        loss.backward()
-        finish_auxiliary_pass(optimizer, self.joint)
-        timer.tick("dtu_alpha")
+        finish_auxiliary_pass(step, loss, "the DTU background-alpha loss", self.joint)
+        step.timer.tick("dtu_alpha")
 
     def densify_rule(
         self, iteration: int, colors: Callable[[Gaussians], Tensor]

@@ -19,6 +19,7 @@ from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.raster import RasterOutput
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train import Trainer, preset
+from sparsesplat.engine.train.loop.parts import AuxiliaryStep
 from sparsesplat.engine.train.regularizers.consistency import seen_depth, warp_consistency_loss
 
 
@@ -225,7 +226,9 @@ def test_dtu_alpha_pass_changes_only_opacities_and_lowers_background_alpha() -> 
     before = {k: v.detach().clone() for k, v in t.gaussians.params.items()}
     a0 = bg_alpha()
     for _ in range(5):
-        t.dtu.step_pre_photometric(1, t.gaussians, t.optimizer, view, t.guard, t.timer)
+        t.dtu.step_pre_photometric(
+            AuxiliaryStep(1, t.gaussians, t.optimizer, view, t.extent, t.guard, t.timer)
+        )
     after = t.gaussians.params
     for k, v in before.items():
         assert torch.equal(v, after[k].detach()) == (k != "opacity_logits"), k

@@ -8,7 +8,7 @@ import torch
 
 from sparsesplat.engine.synthetic import make_scene
 from sparsesplat.engine.train import Trainer
-from sparsesplat.engine.train.loop.parts import StageTimer
+from sparsesplat.engine.train.loop.parts import AuxiliaryStep, StageTimer
 from tests.engine.train.loop.test_trainer_parts import small
 
 
@@ -45,7 +45,8 @@ def test_hard_depth_pass_pulls_rendered_depth_to_an_exact_prior(seed: int, downs
     timer = StageTimer(False)
     for it in range(1, 91):  # only the depth pass: no photometric step in between
         view = t._next_view()
-        t.depth.step_pre_photometric(it, t.gaussians, t.optimizer, view, t.extent, t.guard, timer)
+        step = AuxiliaryStep(it, t.gaussians, t.optimizer, view, t.extent, t.guard, timer)
+        t.depth.step_pre_photometric(step)
     end = _hard_depth_agreement(t, depths)
     assert end > start + 0.5, (start, end)  # measured: +0.79 to +1.07 (seeds 0-2)
     moved = {k for k, v in t.gaussians.params.items() if not torch.equal(v.detach(), before[k])}
@@ -79,7 +80,9 @@ def test_auxiliary_step_joint_leaves_the_depth_gradient_for_the_photometric_step
     steps = _adam_steps(t)
     view = t._next_view()
     t.depth.step_pre_photometric(
-        t.iteration + 1, t.gaussians, t.optimizer, view, t.extent, t.guard, StageTimer(False)
+        AuxiliaryStep(
+            t.iteration + 1, t.gaussians, t.optimizer, view, t.extent, t.guard, StageTimer(False)
+        )
     )
     grad = t.gaussians.means.grad
     moved = {k for k, v in t.gaussians.params.items() if not torch.equal(v.detach(), before[k])}
