@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -77,38 +78,50 @@ def _assert_wraps_inside(box: dict[str, Any], what: str) -> None:
     assert box["pageWidth"] <= box["window"], f"the page is wider than the window: {box}"
 
 
-def _job_page(browser: Any, service: LiveService, width: int, job_id: str) -> Any:
-    """(context, page, console) of a new page of ``width`` x 800 on the job's page."""
+@pytest.fixture(params=WIDTHS)
+def width(request: pytest.FixtureRequest) -> int:
+    """Each window width the pages are checked at."""
+    return int(request.param)
+
+
+@pytest.fixture
+def job_page(browser: Any, service: LiveService, width: int) -> Iterator[Callable[[str, str], Any]]:
+    """``job_page(job_id, selector)`` opens a job's page in a new ``width`` x 800 window and
+    returns the page once ``selector`` shows on it; after the test the console must have
+    stayed clean, and the window is closed."""
     context, page, console = new_page(
         browser, service.url, viewport={"width": width, "height": 800}
     )
-    page.goto(f"/#/jobs/{job_id}")
-    return context, page, console
+
+    def open_job(job_id: str, selector: str) -> Any:
+        page.goto(f"/#/jobs/{job_id}")
+        page.wait_for_selector(selector)
+        return page
+
+    try:
+        yield open_job
+        console.assert_clean()
+    finally:
+        context.close()
 
 
-@pytest.mark.parametrize("width", WIDTHS)
 def test_job_page_shows_the_warnings_wrapped_inside_the_page(
-    browser: Any, service: LiveService, jobs: Any, width: int, artifacts: Path
+    job_page: Callable[[str, str], Any], jobs: Any, width: int, artifacts: Path
 ) -> None:
     warned, _ = jobs
-    context, page, console = _job_page(browser, service, width, warned["id"])
-    page.wait_for_selector("#job-warnings:not([hidden]) p.warning-text")
+    page = job_page(warned["id"], "#job-warnings:not([hidden]) p.warning-text")
     shown = page.locator("#job-warnings p.warning-text").all_text_contents()
     assert shown == [f"Warning: {w}" for w in warned["warnings"]]
     assert not page.is_visible("#job-error")
     _assert_wraps_inside(page.evaluate(_BOX, "#job-warnings p.warning-text"), "the warning")
     page.screenshot(path=str(artifacts / f"job-warning-{width}.png"), full_page=True)
-    console.assert_clean()
-    context.close()
 
 
-@pytest.mark.parametrize("width", WIDTHS)
 def test_a_long_error_wraps_on_the_job_page_and_in_the_jobs_list(
-    browser: Any, service: LiveService, jobs: Any, width: int, artifacts: Path
+    job_page: Callable[[str, str], Any], jobs: Any, width: int, artifacts: Path
 ) -> None:
     _, failed = jobs
-    context, page, console = _job_page(browser, service, width, failed["id"])
-    page.wait_for_selector("#job-error:not([hidden])")
+    page = job_page(failed["id"], "#job-error:not([hidden])")
     assert page.text_content("#job-error") == failed["error"]
     _assert_wraps_inside(page.evaluate(_BOX, "#job-error"), "the job page's error")
     page.screenshot(path=str(artifacts / f"job-error-{width}.png"), full_page=True)
@@ -120,5 +133,3 @@ def test_a_long_error_wraps_on_the_job_page_and_in_the_jobs_list(
     assert page.get_attribute(f"{row} td[title]", "title") == failed["error"]
     _assert_wraps_inside(page.evaluate(_BOX, f"{row} .error-text"), "the jobs list's error")
     page.screenshot(path=str(artifacts / f"jobs-error-{width}.png"), full_page=True)
-    console.assert_clean()
-    context.close()
