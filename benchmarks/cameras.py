@@ -10,9 +10,12 @@ reprojection error, points, seconds, and the message when the estimation refused
 
 ``--train SCENE [--iterations N] [--given]`` instead trains the scene twice with its preset
 and seed 0: from the dataset's training cameras, and from the estimated ones (with the
-dataset's intrinsics when ``--given``) brought into the dataset's frame by the similarity
+dataset's intrinsics when ``--given``) brought into the dataset's frame by a similarity
 alignment, and compares the held-out PSNR/SSIM/LPIPS on the dataset's held-out views and
-protocol (DTU's object masks included).
+protocol (DTU's object masks included). The alignment (``--align``) is fitted on the scene by
+default: the training photos' matches triangulated with both camera sets, so that the
+held-out cameras see the object where the dataset has it; ``--align cameras`` fits the
+training cameras' rotations and centres instead (the rotation errors of both are reported).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -89,13 +93,83 @@ def _estimate(scene: Any, given: bool, threads: int, tmp: Path) -> Any:
     return estimate_cameras(paths, intrinsics, threads=threads)
 
 
-def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, float]]:
+ALIGN_MAX_ERROR_PX = 2.0
+"""A matched point takes part in the scene alignment when it reprojects within this many
+pixels in every photo under both camera sets (the matched start's own filter)."""
+ALIGN_MIN_ANGLE_DEG = 1.0
+"""... and was seen under at least this triangulation angle (its depth is defined)."""
+
+
+def _triangulated(tracks: Any, cams: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Every track's point triangulated with ``cams`` and refined, and whether it is usable
+    (in front of every camera, within :data:`ALIGN_MAX_ERROR_PX`, wide enough)."""
+    from sparsesplat.engine.match.triangulate import (
+        dlt,
+        refine,
+        reprojection,
+        triangulation_angles,
+    )
+
+    x, finite = dlt(tracks, cams)
+    x[finite] = refine(x, tracks, cams, 5)[finite]
+    x[~finite] = 0.0
+    err, z = reprojection(x, tracks, cams)
+    ok = finite.copy()
+    bad_obs = ~(np.isfinite(err) & (err <= ALIGN_MAX_ERROR_PX) & (z > 0))
+    ok[tracks.track[bad_obs]] = False
+    ok &= triangulation_angles(x, tracks, cams) >= ALIGN_MIN_ANGLE_DEG
+    return x, ok
+
+
+def scene_alignment(
+    photos: list[Any], ref: list[Any], est: list[Any], matches: Any = None
+) -> tuple[Any, int]:
+    """The similarity taking the dataset's frame to the estimate's, fitted on the scene: the
+    training photos' matches (``matches``, or the engine matcher's defaults) triangulated once
+    with the dataset's cameras ``ref`` and once with the estimated ones ``est`` (both lists of
+    ``PinholeArrays``, one per photo), and the two point sets aligned
+    (``engine.sfm.align.align_points``). Also returns how many points it used. ValueError when
+    fewer than four points are usable under both."""
+    from sparsesplat.engine.match.matcher import match_images
+    from sparsesplat.engine.match.tracks import build_tracks
+    from sparsesplat.engine.sfm.align import align_points
+
+    matches = matches if matches is not None else match_images(photos)
+    tracks = build_tracks(matches)
+    x_ref, ok_ref = _triangulated(tracks, ref)
+    x_est, ok_est = _triangulated(tracks, est)
+    both = ok_ref & ok_est
+    return align_points(x_ref[both], x_est[both]), int(both.sum())
+
+
+def _pinholes(
+    w2cs: list[np.ndarray], intrinsics: Sequence[tuple[float, float, float, float]]
+) -> list[Any]:
+    """``PinholeArrays`` from world-to-camera matrices and (fx, fy, cx, cy) per camera."""
+    from sparsesplat.engine.match.geometry import PinholeArrays
+
+    out = []
+    for w2c, (fx, fy, cx, cy) in zip(w2cs, intrinsics, strict=True):
+        k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        out.append(PinholeArrays(k, np.asarray(w2c, dtype=np.float64)))
+    return out
+
+
+def with_estimated_cameras(
+    scene: Any, estimate: Any, by: str = "scene", matches: Any = None
+) -> tuple[Any, dict[str, float]]:
     """``scene`` with its training cameras replaced by ``estimate``'s, brought into the
-    dataset's frame by the similarity that best aligns them, and the estimate's sparse points
-    likewise; everything else (held-out cameras, masks, bounds, format) is the dataset's. A run
-    on it differs from one on ``scene`` only by the estimation's errors: the poses' residual
-    after the alignment and, unless given, the intrinsics. Also returns the rotation errors
-    (median and largest, degrees) and the estimated focal length."""
+    dataset's frame by a similarity alignment, and the estimate's sparse points likewise;
+    everything else (held-out cameras, masks, bounds, format) is the dataset's. A run on it
+    differs from one on ``scene`` only by the estimation's errors: the poses' residual after
+    the alignment and, unless given, the intrinsics.
+
+    ``by``: ``"scene"`` (:func:`scene_alignment`, what the held-out views see: the object where
+    the dataset has it) or ``"cameras"`` (``engine.sfm.align.align``: the rotations and
+    centres of the training cameras). Also returns the rotation errors (median and largest,
+    degrees) under the chosen alignment, the same under the camera alignment
+    (``cameras_median_deg``, ``cameras_max_deg``), the points the scene alignment used, and
+    the estimated focal length."""
     import dataclasses
 
     import torch
@@ -104,8 +178,21 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
 
     est = [np.linalg.inv(np.array(f.matrix)) for f in estimate.cameras.frames]
     ref = [v.camera.world_to_camera.double().numpy() for v in scene.train]
-    sim = align(est, ref)
+    by_cameras = align(est, ref)
+    figures: dict[str, float] = {}
+    if by == "scene":
+        ref_k = [(v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy) for v in scene.train]
+        est_k = [(f.fx, f.fy, f.cx, f.cy) for f in estimate.cameras.frames]
+        sim, used = scene_alignment(
+            [v.image for v in scene.train], _pinholes(ref, ref_k), _pinholes(est, est_k), matches
+        )
+        figures["alignment_points"] = used
+    elif by == "cameras":
+        sim = by_cameras
+    else:
+        raise ValueError(f"alignment by 'scene' or 'cameras', got {by!r}")
     errors = rotation_errors_deg(est, ref, sim)
+    cam_errors = rotation_errors_deg(est, ref, by_cameras)
     back = sim.inverse()  # the estimated frame -> the dataset's
     train = []
     for view, w2c_est, frame in zip(scene.train, est, estimate.cameras.frames, strict=True):
@@ -114,8 +201,11 @@ def with_estimated_cameras(scene: Any, estimate: Any) -> tuple[Any, dict[str, fl
         train.append(dataclasses.replace(view, camera=camera))
     points = back.map_points(estimate.points.astype(np.float64))
     sparse = (torch.from_numpy(points).float(), torch.from_numpy(estimate.colours).float())
-    figures = {"median_deg": float(np.median(errors)), "max_deg": float(np.max(errors)),
-               "focal_px": float(estimate.cameras.frames[0].fx)}  # fmt: skip
+    figures.update(
+        median_deg=float(np.median(errors)), max_deg=float(np.max(errors)),
+        cameras_median_deg=float(np.median(cam_errors)), cameras_max_deg=float(np.max(cam_errors)),
+        focal_px=float(estimate.cameras.frames[0].fx),
+    )  # fmt: skip
     return dataclasses.replace(scene, train=train, sparse_points=sparse), figures
 
 
@@ -130,13 +220,15 @@ def train_comparison(
     threads: int,
     given: bool,
     runs: tuple[str, ...] = RUNS,
+    by: str = "scene",
 ) -> list[dict[str, Any]]:
     """Held-out metrics of the same run (the scene's preset, seed 0) from the dataset's and
     from the estimated training cameras (:func:`with_estimated_cameras`), the latter also with
     the cameras refined during training, scored on the dataset's held-out views and protocol
     (DTU's object masks included). A refined run is scored twice: at the held-out cameras as
     the dataset gives them (its first camera fixed the frame), and at those cameras mapped by
-    the similarity that aligns its refined training cameras to the dataset's (``realigned``)."""
+    the similarity that aligns its refined training cameras to the dataset's (``realigned``).
+    ``by``: how the estimate is aligned to the dataset (:func:`with_estimated_cameras`)."""
     import torch
 
     from sparsesplat.engine.datasets import load_scene
@@ -147,7 +239,7 @@ def train_comparison(
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         estimated, figures = with_estimated_cameras(
-            dataset, _estimate(dataset, given, threads, Path(tmp))
+            dataset, _estimate(dataset, given, threads, Path(tmp)), by
         )
         print(json.dumps({"estimate": figures}), flush=True)
         for run in runs:
@@ -167,8 +259,8 @@ def train_comparison(
                    **(figures if run != "dataset" else {})}  # fmt: skip
             if run == "refined":
                 row["pose_refinement"] = metrics.get("pose_refinement")
-                row["refined_deg"] = refined_errors(trainer, dataset)
-                row["realigned"] = realigned_metrics(trainer, dataset)
+                row["refined_deg"] = refined_errors(trainer, dataset, by)
+                row["realigned"] = realigned_metrics(trainer, dataset, by)
             rows.append(row)
             print(json.dumps(row), flush=True)
     return rows
@@ -185,31 +277,39 @@ def _posed(old: Any, w2c: np.ndarray, intrinsics: tuple[float, float, float, flo
     return Camera(pose, *intrinsics, old.width, old.height)
 
 
-def _refined_alignment(trainer: Any, dataset: Any) -> tuple[Any, list[float]]:
+def _refined_alignment(trainer: Any, dataset: Any, by: str) -> tuple[Any, list[float]]:
     """The similarity taking the dataset's frame to ``trainer``'s (aligning its refined
-    training cameras to the dataset's), and each refined camera's rotation error (degrees)."""
+    training cameras, or the scene seen through them, to the dataset's; ``by`` as in
+    :func:`with_estimated_cameras`), and each refined camera's rotation error (degrees)."""
+    from sparsesplat.engine.match.geometry import PinholeArrays
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 
-    model = [c.world_to_camera.double().cpu().numpy() for c in trainer.training_cameras()]
+    cameras = trainer.training_cameras()
+    model = [c.world_to_camera.double().cpu().numpy() for c in cameras]
     ref = [v.camera.world_to_camera.double().numpy() for v in dataset.train]
-    sim = align(model, ref)
+    if by == "scene":
+        photos = [v.image for v in dataset.train]
+        ref_cams = [PinholeArrays.of(v.camera) for v in dataset.train]
+        sim = scene_alignment(photos, ref_cams, [PinholeArrays.of(c) for c in cameras])[0]
+    else:
+        sim = align(model, ref)
     return sim, rotation_errors_deg(model, ref, sim)
 
 
-def refined_errors(trainer: Any, dataset: Any) -> dict[str, float]:
+def refined_errors(trainer: Any, dataset: Any, by: str = "scene") -> dict[str, float]:
     """Median and largest rotation error (degrees) of ``trainer``'s refined training cameras
     against the dataset's after a similarity alignment (as :func:`measure` scores the
     estimate itself)."""
-    errors = _refined_alignment(trainer, dataset)[1]
+    errors = _refined_alignment(trainer, dataset, by)[1]
     return {"median_deg": float(np.median(errors)), "max_deg": float(np.max(errors))}
 
 
-def realigned_metrics(trainer: Any, dataset: Any) -> dict[str, float | None]:
+def realigned_metrics(trainer: Any, dataset: Any, by: str = "scene") -> dict[str, float | None]:
     """``trainer``'s held-out metrics at the dataset's held-out cameras mapped into its frame
     by the similarity that aligns its (refined) training cameras to the dataset's."""
     import dataclasses
 
-    sim = _refined_alignment(trainer, dataset)[0]
+    sim = _refined_alignment(trainer, dataset, by)[0]
     scored = trainer.recorder.scene
     test = []
     for view in scored.test:
@@ -240,12 +340,16 @@ def main(argv: list[str] | None = None) -> int:
         "--runs", nargs="*", default=list(RUNS), choices=list(RUNS),
         help="with --train: which runs to make",
     )  # fmt: skip
+    parser.add_argument(
+        "--align", choices=("scene", "cameras"), default="scene",
+        help="with --train: align the estimate by the scene's points or by the cameras",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
             root / SCENES[args.train], args.iterations, args.threads, args.given,
-            tuple(args.runs),
+            tuple(args.runs), args.align,
         )  # fmt: skip
         mode = "given" if args.given else "estimated"
         out = results_dir() / f"cameras-train-{args.train}-{mode}.json"

@@ -75,6 +75,51 @@ def align(est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray]) -> Similarity:
     return Similarity(q, scale, translation)
 
 
+def _umeyama(ref: np.ndarray, est: np.ndarray) -> Similarity:
+    """Least-squares similarity with est ~ scale * rotation @ ref + translation (Umeyama)."""
+    mu_ref, mu_est = ref.mean(0), est.mean(0)
+    a, b = ref - mu_ref, est - mu_est
+    u, s, vt = np.linalg.svd(b.T @ a / len(ref))
+    d = np.array([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    rotation = u @ np.diag(d) @ vt
+    spread = float((a**2).sum(axis=1).mean())
+    scale = float((s * d).sum()) / spread if spread > 0 else 1.0
+    return Similarity(rotation, scale, mu_est - scale * rotation @ mu_ref)
+
+
+MIN_ALIGN_POINTS = 4
+"""Fewest corresponding points :func:`align_points` accepts (three fix a similarity; one more
+lets a wrong point show)."""
+
+
+def align_points(ref: np.ndarray, est: np.ndarray, trim: float = 3.0) -> Similarity:
+    """The similarity taking the reference frame to the estimated one from corresponding
+    scene points ((N, 3) each, the same points in both frames): least squares, then once more
+    over the points whose residual is within ``trim`` times the median residual, so that a
+    few wrongly triangulated points do not tilt it.
+
+    Where :func:`align` matches the cameras, this matches the scene. With a few cameras that
+    all look at one object the two differ: a small turn of a camera and a sideways shift of it
+    give nearly the same photo of a distant object, so the estimate can be off the reference by
+    such a pair in every camera and still place the object to a fraction of a pixel; the camera
+    alignment then puts the object pixels off (DTU: 2-3 px at 400x300) where this one keeps it
+    in place (docs/experiments/2026-11-29-scene-alignment.md)."""
+    ref = np.asarray(ref, dtype=np.float64)
+    est = np.asarray(est, dtype=np.float64)
+    if ref.shape != est.shape or ref.ndim != 2 or ref.shape[1] != 3:
+        raise ValueError(f"points must be two (N, 3) arrays, got {ref.shape} and {est.shape}")
+    finite = np.isfinite(ref).all(axis=1) & np.isfinite(est).all(axis=1)
+    ref, est = ref[finite], est[finite]
+    if len(ref) < MIN_ALIGN_POINTS:
+        raise ValueError(f"a similarity needs at least {MIN_ALIGN_POINTS} points, got {len(ref)}")
+    sim = _umeyama(ref, est)
+    residual = np.linalg.norm(sim.map_points(ref) - est, axis=1)
+    keep = residual <= trim * float(np.median(residual))
+    if MIN_ALIGN_POINTS <= keep.sum() < len(ref):
+        sim = _umeyama(ref[keep], est[keep])
+    return sim
+
+
 def rotation_errors_deg(
     est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray], similarity: Similarity
 ) -> list[float]:

@@ -9,7 +9,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from sparsesplat.engine.errors import SceneError
-from sparsesplat.engine.sfm.align import align, rotation_errors_deg
+from sparsesplat.engine.sfm.align import align, align_points, rotation_errors_deg
 from sparsesplat.engine.sfm.exif import exif_focal_px
 from sparsesplat.engine.sfm.points import (
     read_sparse_points,
@@ -44,6 +44,24 @@ def test_align_recovers_a_known_similarity() -> None:
     assert np.allclose(sim.translation, shift, atol=1e-12)
     assert max(rotation_errors_deg(est, ref, sim)) < 1e-5
     assert np.allclose(sim.map_world_to_camera(ref[2]), est[2], atol=1e-12)
+
+
+def test_align_points_recovers_a_known_similarity_past_wrong_points() -> None:
+    rng = np.random.default_rng(0)
+    ref = rng.normal(size=(200, 3))
+    q = Rotation.random(random_state=2).as_matrix()
+    scale, shift = 0.4, np.array([1.0, 2.0, -3.0])
+    est = scale * ref @ q.T + shift
+    est[:10] += rng.normal(scale=2.0, size=(10, 3))  # ten wrongly triangulated points
+    sim = align_points(ref, est)
+    assert np.allclose(sim.rotation, q, atol=1e-9)
+    assert sim.scale == pytest.approx(scale, rel=1e-9)
+    assert np.allclose(sim.translation, shift, atol=1e-9)
+    # Without the trimmed refit the ten points pull it off: the check above can fail.
+    loose = align_points(ref, est, trim=np.inf)
+    assert not np.allclose(loose.rotation, q, atol=1e-6)
+    with pytest.raises(ValueError, match="at least 4 points"):
+        align_points(ref[:3], est[:3])
 
 
 def test_sparse_init_keeps_every_point_and_tops_up_near_them() -> None:
