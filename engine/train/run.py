@@ -19,6 +19,7 @@ from typing import Any
 
 from sparsesplat.engine.datasets.common import camera_layout
 from sparsesplat.engine.scene import Scene
+from sparsesplat.engine.threads import torch_threads
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
 from sparsesplat.engine.train.config.overrides import resolve
 from sparsesplat.engine.train.config.presets import choose_preset, preset
@@ -135,28 +136,32 @@ def build_run(
     if on_plan is not None:
         on_plan(plan)
     config = plan.config
-    priors: list[Any] | None = None
-    if config.uses_depth:
-        kind = config.depth.prior
-        if prior_source is not None:
-            priors = list(prior_source(scene, kind))
-        else:
-            from sparsesplat.engine.priors import compute_priors
+    # The run's thread count from its first step: the priors' network and the start's plane
+    # sweep sum in another order on another count, and a seeded run must not depend on the
+    # process's default (the service's workers and the CLI differ there).
+    with torch_threads(config.threads):
+        priors: list[Any] | None = None
+        if config.uses_depth:
+            kind = config.depth.prior
+            if prior_source is not None:
+                priors = list(prior_source(scene, kind))
+            else:
+                from sparsesplat.engine.priors import compute_priors
 
-            priors = list(
-                compute_priors(scene, kind, cache_dir=prior_cache_dir, models_dir=models_dir)
-            )
-        if on_priors is not None:
-            on_priors(priors)
-    trainer = Trainer(
-        scene,
-        config,
-        priors,
-        out_dir,
-        on_progress,
-        device,
-        resume_from,
-        init_depth,
-        time_source=time_source,
-    )
+                priors = list(
+                    compute_priors(scene, kind, cache_dir=prior_cache_dir, models_dir=models_dir)
+                )
+            if on_priors is not None:
+                on_priors(priors)
+        trainer = Trainer(
+            scene,
+            config,
+            priors,
+            out_dir,
+            on_progress,
+            device,
+            resume_from,
+            init_depth,
+            time_source=time_source,
+        )
     return PreparedRun(trainer, plan, priors)

@@ -77,3 +77,19 @@ def test_synthetic_upload_trains_and_renders(live: LiveService, tmp_path: Path) 
     expected = (reference.permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.int16)
     assert np.abs(served - expected).max() <= 1
     assert served.max() > 0, "the trained model renders something at a held-out camera"
+
+    # The job trained exactly what `sparsesplat train` trains from the same folder and seed
+    # (one run recipe: same preset, same defaults), at the worker's thread count.
+    import subprocess
+    import sys
+
+    out = tmp_path / "cli"
+    command = [sys.executable, "-m", "sparsesplat", "train", str(folder), "--out", str(out),
+               "--iterations", str(ITERATIONS), "--seed", "0", "--set", "threads=1",
+               "--set", "record.eval_interval_s=1.0"]  # fmt: skip
+    subprocess.run(command, check=True, capture_output=True, timeout=600)
+    job_run = live.data_dir / "jobs" / job.id / "run"
+    assert (out / "model.ply").read_bytes() == (job_run / "model.ply").read_bytes()
+    cli = json.loads((out / "metrics.json").read_text())
+    assert final.progress is not None and cli["preset"] == final.progress.preset
+    assert cli["psnr"] == pytest.approx(records[-1]["psnr"], rel=0, abs=0)
