@@ -230,42 +230,20 @@ std::vector<torch::Tensor> forward(torch::Tensor means2d, torch::Tensor conics,
   });
 
   // 3. Tile lists in depth order: count, prefix sum, fill (rank order keeps each list sorted).
-  // In parallel over contiguous rank ranges, one per thread: each range counts its own tile
-  // hits, and its cursor in a tile starts after the hits of the ranges before it, so every
-  // list comes out in rank order exactly as a serial fill writes it (the same bits whatever
-  // the thread count).
-  const int64_t n_ranges = std::max<int64_t>(1, std::min<int64_t>(n_threads(), M / 4096));
-  auto range_begin = [&](int64_t k) { return M * k / n_ranges; };
-  std::vector<int32_t> hits((size_t)n_ranges * n_tiles, 0);
-  at::parallel_for(0, n_ranges, 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      int32_t* h = hits.data() + k * n_tiles;
-      for (int64_t r = range_begin(k); r < range_begin(k + 1); ++r)
-        for (int ty = ty0[r]; ty <= ty1[r]; ++ty)
-          for (int tx = tx0[r]; tx <= tx1[r]; ++tx) h[ty * tiles_x + tx]++;
-    }
-  });
   auto offsets_t = torch::zeros({n_tiles + 1}, torch::kInt32);
   int32_t* offsets = offsets_t.data_ptr<int32_t>();
-  for (int t = 0; t < n_tiles; ++t) {
-    int32_t next = offsets[t];
-    for (int64_t k = 0; k < n_ranges; ++k) {  // hits -> each range's first slot in tile t
-      const int32_t count = hits[k * n_tiles + t];
-      hits[k * n_tiles + t] = next;
-      next += count;
-    }
-    offsets[t + 1] = next;
-  }
+  for (int64_t r = 0; r < M; ++r)
+    for (int ty = ty0[r]; ty <= ty1[r]; ++ty)
+      for (int tx = tx0[r]; tx <= tx1[r]; ++tx) offsets[ty * tiles_x + tx + 1]++;
+  for (int t = 0; t < n_tiles; ++t) offsets[t + 1] += offsets[t];
   auto list_t = torch::empty({(int64_t)offsets[n_tiles]}, torch::kInt32);
   int32_t* list = list_t.data_ptr<int32_t>();
-  at::parallel_for(0, n_ranges, 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      int32_t* cursor = hits.data() + k * n_tiles;
-      for (int64_t r = range_begin(k); r < range_begin(k + 1); ++r)
-        for (int ty = ty0[r]; ty <= ty1[r]; ++ty)
-          for (int tx = tx0[r]; tx <= tx1[r]; ++tx) list[cursor[ty * tiles_x + tx]++] = (int32_t)r;
-    }
-  });
+  {
+    std::vector<int32_t> cursor(offsets, offsets + n_tiles);
+    for (int64_t r = 0; r < M; ++r)
+      for (int ty = ty0[r]; ty <= ty1[r]; ++ty)
+        for (int tx = tx0[r]; tx <= tx1[r]; ++tx) list[cursor[ty * tiles_x + tx]++] = (int32_t)r;
+  }
 
   // 4. Blend tiles in parallel.
   auto image = torch::empty({C, H, W}, torch::kFloat32);

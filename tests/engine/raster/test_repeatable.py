@@ -28,10 +28,10 @@ def test_cpu_gradients_are_bit_identical_on_every_call(seed: int) -> None:
 
 
 def test_cpu_forward_is_the_same_bits_on_one_and_two_threads(seed: int) -> None:
-    """The tile lists are binned in parallel over rank ranges (one per thread, from 4096
-    visible Gaussians a range): every list must come out in depth order exactly as one thread
-    writes it, or the blend order, and so the image, changes. 12000 Gaussians: three ranges'
-    worth, spread over many tiles each."""
+    """The forward is parallel over tiles only: each tile's list is in depth order and its
+    pixels blended by one thread, so the image is the same bits on any thread count (a
+    binning or blending split across threads must keep that). 12000 Gaussians over many
+    tiles each."""
     from sparsesplat.engine.threads import torch_threads
 
     gs = random_gaussians(12000, seed, spread=1.2)
