@@ -13,9 +13,10 @@ and seed 0: from the dataset's training cameras, and from the estimated ones (wi
 dataset's intrinsics when ``--given``) brought into the dataset's frame by a similarity
 alignment, and compares the held-out PSNR/SSIM/LPIPS on the dataset's held-out views and
 protocol (DTU's object masks included). The alignment (``--align``) is fitted on the scene by
-default: the training photos' matches triangulated with both camera sets, so that the
-held-out cameras see the object where the dataset has it; ``--align cameras`` fits the
-training cameras' rotations and centres instead (the rotation errors of both are reported).
+default: the dataset's training cameras see the estimate's triangulated matches where the
+estimated cameras see them, so that the held-out cameras see the scene where the dataset
+has it; ``--align cameras`` fits the training cameras' rotations and centres instead (the
+rotation errors of both are reported).
 """
 
 from __future__ import annotations
@@ -95,51 +96,47 @@ def _estimate(scene: Any, given: bool, threads: int, tmp: Path) -> Any:
 
 ALIGN_MAX_ERROR_PX = 2.0
 """A matched point takes part in the scene alignment when it reprojects within this many
-pixels in every photo under both camera sets (the matched start's own filter)."""
+pixels in every estimated photo (the matched start's own filter)..."""
 ALIGN_MIN_ANGLE_DEG = 1.0
 """... and was seen under at least this triangulation angle (its depth is defined)."""
 
 
-def _triangulated(tracks: Any, cams: list[Any]) -> tuple[np.ndarray, np.ndarray]:
-    """Every track's point triangulated with ``cams`` and refined, and whether it is usable
-    (in front of every camera, within :data:`ALIGN_MAX_ERROR_PX`, wide enough)."""
+def scene_alignment(
+    photos: list[Any], ref: list[Any], est: list[Any], matches: Any = None
+) -> tuple[Any, int]:
+    """The similarity taking the dataset's frame to the estimate's, fitted on what the photos
+    show: the training photos' matches (``matches``, or the engine matcher's defaults)
+    triangulated with the estimated cameras ``est``, and the similarity under which the
+    dataset's cameras ``ref`` see those points where the estimated ones do
+    (``engine.sfm.align.align_reprojection``; both lists of ``PinholeArrays``, one per photo).
+    Also returns how many points it used."""
+    from sparsesplat.engine.match.matcher import match_images
+    from sparsesplat.engine.match.tracks import build_tracks
     from sparsesplat.engine.match.triangulate import (
         dlt,
         refine,
         reprojection,
         triangulation_angles,
     )
-
-    x, finite = dlt(tracks, cams)
-    x[finite] = refine(x, tracks, cams, 5)[finite]
-    x[~finite] = 0.0
-    err, z = reprojection(x, tracks, cams)
-    ok = finite.copy()
-    bad_obs = ~(np.isfinite(err) & (err <= ALIGN_MAX_ERROR_PX) & (z > 0))
-    ok[tracks.track[bad_obs]] = False
-    ok &= triangulation_angles(x, tracks, cams) >= ALIGN_MIN_ANGLE_DEG
-    return x, ok
-
-
-def scene_alignment(
-    photos: list[Any], ref: list[Any], est: list[Any], matches: Any = None
-) -> tuple[Any, int]:
-    """The similarity taking the dataset's frame to the estimate's, fitted on the scene: the
-    training photos' matches (``matches``, or the engine matcher's defaults) triangulated once
-    with the dataset's cameras ``ref`` and once with the estimated ones ``est`` (both lists of
-    ``PinholeArrays``, one per photo), and the two point sets aligned
-    (``engine.sfm.align.align_points``). Also returns how many points it used. ValueError when
-    fewer than four points are usable under both."""
-    from sparsesplat.engine.match.matcher import match_images
-    from sparsesplat.engine.match.tracks import build_tracks
-    from sparsesplat.engine.sfm.align import align_points
+    from sparsesplat.engine.sfm.align import align_reprojection
 
     matches = matches if matches is not None else match_images(photos)
     tracks = build_tracks(matches)
-    x_ref, ok_ref = _triangulated(tracks, ref)
-    x_est, ok_est = _triangulated(tracks, est)
-    both = ok_ref & ok_est
-    return align_points(x_ref[both], x_est[both]), int(both.sum())
+    x, usable = dlt(tracks, est)
+    x[usable] = refine(x, tracks, est, 5)[usable]
+    x[~usable] = 0.0
+    err, z = reprojection(x, tracks, est)
+    bad = ~(np.isfinite(err) & (err <= ALIGN_MAX_ERROR_PX) & (z > 0))
+    usable[tracks.track[bad]] = False
+    usable &= triangulation_angles(x, tracks, est) >= ALIGN_MIN_ANGLE_DEG
+    sim = align_reprojection(
+        x[usable],
+        [c.world_to_camera for c in est],
+        [c.world_to_camera for c in ref],
+        [c.K for c in est],
+        [c.K for c in ref],
+    )
+    return sim, int(usable.sum())
 
 
 def _pinholes(

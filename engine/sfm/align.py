@@ -75,49 +75,110 @@ def align(est_w2c: list[np.ndarray], ref_w2c: list[np.ndarray]) -> Similarity:
     return Similarity(q, scale, translation)
 
 
-def _umeyama(ref: np.ndarray, est: np.ndarray) -> Similarity:
-    """Least-squares similarity with est ~ scale * rotation @ ref + translation (Umeyama)."""
-    mu_ref, mu_est = ref.mean(0), est.mean(0)
-    a, b = ref - mu_ref, est - mu_est
-    u, s, vt = np.linalg.svd(b.T @ a / len(ref))
-    d = np.array([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
-    rotation = u @ np.diag(d) @ vt
-    spread = float((a**2).sum(axis=1).mean())
-    scale = float((s * d).sum()) / spread if spread > 0 else 1.0
-    return Similarity(rotation, scale, mu_est - scale * rotation @ mu_ref)
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """The rotation by the vector ``w`` (axis times angle in radians)."""
+    theta = float(np.linalg.norm(w))
+    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if theta < 1e-12:
+        return np.eye(3) + k
+    k /= theta
+    return np.eye(3) + math.sin(theta) * k + (1.0 - math.cos(theta)) * k @ k
 
 
-MIN_ALIGN_POINTS = 4
-"""Fewest corresponding points :func:`align_points` accepts (three fix a similarity; one more
-lets a wrong point show)."""
+def _project(points: np.ndarray, k: np.ndarray, w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (N, 2) and depths (N,) of ``points`` through intrinsics ``k`` and ``w2c``."""
+    q = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = q[:, 2]
+    safe = np.where(np.abs(z) > 1e-12, z, 1e-12)
+    return q[:, :2] / safe[:, None] @ k[:2, :2].T + k[:2, 2], z
 
 
-def align_points(ref: np.ndarray, est: np.ndarray, trim: float = 3.0) -> Similarity:
-    """The similarity taking the reference frame to the estimated one from corresponding
-    scene points ((N, 3) each, the same points in both frames): least squares, then once more
-    over the points whose residual is within ``trim`` times the median residual, so that a
-    few wrongly triangulated points do not tilt it.
+REPROJECTION_HUBER_PX = 2.0
+"""Residuals (pixels) beyond which :func:`align_reprojection` weighs a point down (Huber): a
+wrongly triangulated point or a badly estimated camera must not pull the fit."""
 
-    Where :func:`align` matches the cameras, this matches the scene. With a few cameras that
-    all look at one object the two differ: a small turn of a camera and a sideways shift of it
-    give nearly the same photo of a distant object, so the estimate can be off the reference by
-    such a pair in every camera and still place the object to a fraction of a pixel; the camera
-    alignment then puts the object pixels off (DTU: 2-3 px at 400x300) where this one keeps it
-    in place (docs/experiments/2026-11-29-scene-alignment.md)."""
-    ref = np.asarray(ref, dtype=np.float64)
-    est = np.asarray(est, dtype=np.float64)
-    if ref.shape != est.shape or ref.ndim != 2 or ref.shape[1] != 3:
-        raise ValueError(f"points must be two (N, 3) arrays, got {ref.shape} and {est.shape}")
-    finite = np.isfinite(ref).all(axis=1) & np.isfinite(est).all(axis=1)
-    ref, est = ref[finite], est[finite]
-    if len(ref) < MIN_ALIGN_POINTS:
-        raise ValueError(f"a similarity needs at least {MIN_ALIGN_POINTS} points, got {len(ref)}")
-    sim = _umeyama(ref, est)
-    residual = np.linalg.norm(sim.map_points(ref) - est, axis=1)
-    keep = residual <= trim * float(np.median(residual))
-    if MIN_ALIGN_POINTS <= keep.sum() < len(ref):
-        sim = _umeyama(ref[keep], est[keep])
-    return sim
+
+def align_reprojection(
+    points: np.ndarray,
+    est_w2c: list[np.ndarray],
+    ref_w2c: list[np.ndarray],
+    est_intrinsics: list[np.ndarray],
+    ref_intrinsics: list[np.ndarray] | None = None,
+    iterations: int = 30,
+) -> Similarity:
+    """The similarity taking the reference frame to the estimated one under which the
+    reference cameras, mapped into the estimate's frame, see the estimate's ``points`` ((N, 3),
+    in the estimated frame) where the estimated cameras see them: robust least squares on the
+    pixel distances over every camera (one 3x3 K per camera: ``est_intrinsics`` for the
+    estimated cameras, ``ref_intrinsics`` for the reference ones, the same when None), by
+    Levenberg-Marquardt from :func:`align`'s similarity.
+
+    This is the alignment that held-out cameras near the training ones need: what a held-out
+    photo is compared with is the scene seen through it. :func:`align` fits the cameras'
+    orientations and centres instead. With three photos of one object, a small turn of a
+    camera and a sideways shift of it give nearly the same photo, and the camera fit then put
+    DTU's object 2-3 px off in every view; with three forward-facing photos the estimate's
+    depths are stretched against the dataset's, so a fit of the 3D points to each other put
+    LLFF's views 10 px off. This one keeps both within about a pixel
+    (docs/experiments/2026-11-29-scene-alignment.md)."""
+    points = np.asarray(points, dtype=np.float64)
+    start = align(est_w2c, ref_w2c)
+    ref_k = est_intrinsics if ref_intrinsics is None else ref_intrinsics
+    targets = []
+    for w2c, k in zip(est_w2c, est_intrinsics, strict=True):
+        uv, z = _project(points, k, w2c)
+        targets.append((uv, z > 0))
+    if sum(int(front.sum()) for _, front in targets) < 4:
+        return start
+
+    def similarity(p: np.ndarray) -> Similarity:
+        return Similarity(
+            _rodrigues(p[:3]) @ start.rotation,
+            start.scale * math.exp(p[3]),
+            start.translation + p[4:7] * start.scale,
+        )
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        sim = similarity(p)
+        out = []
+        for ref, k, (uv, front) in zip(ref_w2c, ref_k, targets, strict=True):
+            seen, _ = _project(points[front], k, sim.map_world_to_camera(ref))
+            out.append(seen - uv[front])
+        return np.concatenate(out)  # (M, 2)
+
+    def weights(r: np.ndarray) -> np.ndarray:
+        norm = np.linalg.norm(r, axis=1)
+        return REPROJECTION_HUBER_PX / np.maximum(norm, REPROJECTION_HUBER_PX)
+
+    def cost(r: np.ndarray) -> float:
+        norm = np.linalg.norm(r, axis=1)
+        h = REPROJECTION_HUBER_PX
+        return float(np.where(norm <= h, 0.5 * norm**2, h * (norm - 0.5 * h)).sum())
+
+    p = np.zeros(7)
+    r = residuals(p)
+    damping = 1e-3
+    for _ in range(iterations):
+        w = np.repeat(weights(r), 2)
+        step = 1e-6
+        jac = np.stack(
+            [(residuals(p + step * e) - residuals(p - step * e)).ravel() / (2 * step)
+             for e in np.eye(7)],
+            axis=1,
+        )  # fmt: skip
+        jtw = jac.T * w
+        normal, grad = jtw @ jac, jtw @ r.ravel()
+        improved = False
+        while damping < 1e12:
+            delta = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), -grad)
+            trial = residuals(p + delta)
+            if cost(trial) < cost(r):
+                p, r, damping, improved = p + delta, trial, damping * 0.3, True
+                break
+            damping *= 10.0
+        if not improved or float(np.abs(delta).max()) < 1e-12:
+            break
+    return similarity(p)
 
 
 def rotation_errors_deg(
