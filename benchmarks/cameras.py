@@ -178,10 +178,12 @@ def with_estimated_cameras(
     by_cameras = align(est, ref)
     figures: dict[str, float] = {}
     if by == "scene":
-        ref_k = [(v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy) for v in scene.train]
+        from sparsesplat.engine.match.geometry import PinholeArrays
+
         est_k = [(f.fx, f.fy, f.cx, f.cy) for f in estimate.cameras.frames]
+        ref_cams = [PinholeArrays.of(v.camera) for v in scene.train]
         sim, used = scene_alignment(
-            [v.image for v in scene.train], _pinholes(ref, ref_k), _pinholes(est, est_k), matches
+            [v.image for v in scene.train], ref_cams, _pinholes(est, est_k), matches
         )
         figures["alignment_points"] = used
     elif by == "cameras":

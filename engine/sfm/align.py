@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sparsesplat.engine.match.geometry import PinholeArrays, project
+
 
 @dataclass
 class Similarity:
@@ -85,14 +87,6 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + math.sin(theta) * k + (1.0 - math.cos(theta)) * k @ k
 
 
-def _project(points: np.ndarray, k: np.ndarray, w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (N, 2) and depths (N,) of ``points`` through intrinsics ``k`` and ``w2c``."""
-    q = points @ w2c[:3, :3].T + w2c[:3, 3]
-    z = q[:, 2]
-    safe = np.where(np.abs(z) > 1e-12, z, 1e-12)
-    return q[:, :2] / safe[:, None] @ k[:2, :2].T + k[:2, 2], z
-
-
 REPROJECTION_HUBER_PX = 2.0
 """Residuals (pixels) beyond which :func:`align_reprojection` weighs a point down (Huber): a
 wrongly triangulated point or a badly estimated camera must not pull the fit."""
@@ -134,8 +128,8 @@ def align_reprojection(
     # median pixel distance went from 2.8 to 36 px while the summed loss fell).
     targets = []
     for w2c, ref, k_est, k_ref in zip(est_w2c, ref_w2c, est_intrinsics, ref_k, strict=True):
-        uv, z = _project(points, k_est, w2c)
-        seen, z_ref = _project(points, k_ref, start.map_world_to_camera(ref))
+        uv, z = project(points, PinholeArrays(k_est, w2c))
+        seen, z_ref = project(points, PinholeArrays(k_ref, start.map_world_to_camera(ref)))
         near = np.linalg.norm(seen - uv, axis=1) <= REPROJECTION_START_MAX_PX
         targets.append((uv, (z > 0) & (z_ref > 0) & near))
     if sum(int(used.sum()) for _, used in targets) < 4:
@@ -152,7 +146,7 @@ def align_reprojection(
         sim = similarity(p)
         out = []
         for ref, k, (uv, used) in zip(ref_w2c, ref_k, targets, strict=True):
-            seen, _ = _project(points[used], k, sim.map_world_to_camera(ref))
+            seen, _ = project(points[used], PinholeArrays(k, sim.map_world_to_camera(ref)))
             out.append(seen - uv[used])
         return np.concatenate(out)  # (M, 2)
 

@@ -22,6 +22,7 @@ from sparsesplat.engine.sfm.points import (
     sparse_initial_points,
     write_sparse_points,
 )
+from tests.engine.sfm.textured import look_at
 
 
 def _pose(rng: np.random.Generator) -> np.ndarray:
@@ -54,14 +55,7 @@ def test_align_recovers_a_known_similarity() -> None:
 
 def _look_at(centre: np.ndarray) -> np.ndarray:
     """World-to-camera (OpenCV) of a camera at ``centre`` looking at the origin."""
-    forward = -centre / np.linalg.norm(centre)
-    right = np.cross(forward, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    w2c = np.eye(4)
-    w2c[:3, :3] = np.stack([right, down, forward])
-    w2c[:3, 3] = -w2c[:3, :3] @ centre
-    return w2c
+    return look_at(centre, np.zeros(3))
 
 
 def _orbit(w2c: np.ndarray, angle_deg: float) -> np.ndarray:
