@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from sparsesplat.api.camera_estimation import CameraEstimation
 from sparsesplat.api.names import TERMINAL_JOB_STATES, ColorModelName, InitName, PresetName
 
 
@@ -149,25 +150,6 @@ class Record(BaseModel):
     """Held-out views the record scored. Interim records score the same few each time
     (``record.eval_max_views``); where that is fewer than all, the end brings a record on
     those few (the curve's last point) and then the final one on all of them."""
-
-
-class CameraEstimation(BaseModel):
-    """How the cameras of a photos-only upload were estimated (structure from motion)."""
-
-    views: int
-    """Photos registered (all of them: a job with an unplaceable photo fails)."""
-    points: int
-    """Sparse points triangulated (``init='sparse'`` starts from them)."""
-    reprojection_error_px: float
-    """Mean reprojection error of the points, pixels."""
-    triangulation_angle_deg: float
-    """Median triangulation angle of the points, degrees (the parallax between the photos)."""
-    seconds: float
-    """Wall time of the estimation."""
-    attempt: str
-    """The settings that succeeded (``relaxed`` SIFT, ``learned`` matches, ``more features``)."""
-    focal: str
-    """Where the focal length started: ``given`` (held fixed), ``exif`` or ``guess``."""
 
 
 class Progress(BaseModel):

@@ -5,7 +5,9 @@ The upload holds ``photos.json`` (``server/photo_upload.py``); this writes ``cam
 in) and ``sparse_points.npz`` beside it, then the job trains from the folder as any upload.
 A job resumed after estimation finds ``cameras.json`` and skips it. Photos that cannot be
 placed raise the engine's CameraEstimationError, whose message names them: the job fails with
-it and the photos stay stored.
+it and the photos stay stored. Photos the estimate left out (no match with the placed ones,
+when enough of the set is placed) have no frame in ``cameras.json``, so the job trains on the
+others; each is named in a warning.
 """
 
 from __future__ import annotations
@@ -14,8 +16,8 @@ import json
 import logging
 from pathlib import Path
 
+from sparsesplat.api.camera_estimation import CameraEstimation
 from sparsesplat.api.cameras import Intrinsics
-from sparsesplat.api.jobs import CameraEstimation
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.storage import PHOTOS_FILE
 from sparsesplat.api.store.jobs import JobStore
@@ -48,6 +50,8 @@ def estimate_upload_cameras(
         labels=manifest["names"],
     )
     write_estimate(estimate, upload_dir / "cameras.json", manifest["images"])
+    for photo in estimate.left_out:
+        store.add_warning(job_id, f"{photo.reason} (the model is trained on the others)")
     summary = CameraEstimation.model_validate(estimate.summary())
     log.info("cameras estimated", extra={"job_id": job_id, **summary.model_dump()})
     beat.set_cameras(summary)

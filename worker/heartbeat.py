@@ -15,8 +15,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from sparsesplat.api.camera_estimation import CameraEstimation
 from sparsesplat.api.disk import is_disk_full
-from sparsesplat.api.jobs import CameraEstimation, JobState, Progress, Record
+from sparsesplat.api.jobs import JobState, Progress, Record
 from sparsesplat.api.settings import Settings
 from sparsesplat.api.store.jobs import JobStore
 

@@ -96,5 +96,7 @@ def run(args: argparse.Namespace) -> int:
         return fail("cameras", str(exc))
     output.parent.mkdir(parents=True, exist_ok=True)
     write_estimate(estimate, output, images)
+    for photo in estimate.left_out:
+        print(f"warning: {photo.reason}", file=sys.stderr)
     print(json.dumps({"cameras": str(output), **estimate.summary()}), file=sys.stdout)
     return 0

@@ -7,9 +7,11 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from sparsesplat.api.camera_estimation import PhotoPlacement
 from sparsesplat.api.cameras import (
     MIN_PHOTOS,
     AxisConvention,
@@ -23,13 +25,23 @@ from sparsesplat.engine.match.errors import MissingMatchDependency
 from sparsesplat.engine.sfm.attempts import ATTEMPTS
 from sparsesplat.engine.sfm.check import (
     input_problem,
+    left_out,
     median_triangulation_angle_deg,
+    photo,
     result_problem,
+    rotation_std_by_photo,
 )
 from sparsesplat.engine.sfm.errors import CameraEstimationError
 from sparsesplat.engine.sfm.exif import exif_focal_px
 from sparsesplat.engine.sfm.frame import normalise
-from sparsesplat.engine.sfm.reconstruct import CameraPrior, Reconstruction, run_colmap
+from sparsesplat.engine.sfm.mirror import mirrored
+from sparsesplat.engine.sfm.reconstruct import (
+    CameraPrior,
+    MatchStats,
+    Reconstruction,
+    run_colmap,
+)
+from sparsesplat.engine.sfm.uncertainty import residuals
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +60,8 @@ class CameraEstimate:
     """Estimated cameras in the one camera schema, with the sparse points."""
 
     cameras: CamerasFile
-    """OpenCV camera-to-world frames (the photos' own names, all ``train``), near/far and the
-    init box, in the normalised frame (:mod:`.frame`)."""
+    """OpenCV camera-to-world frames of the placed photos (their own file names, all
+    ``train``), near/far and the init box, in the normalised frame (:mod:`.frame`)."""
     points: np.ndarray
     """(N, 3) float32 triangulated points, same frame."""
     colours: np.ndarray
@@ -64,9 +76,17 @@ class CameraEstimate:
     """Median triangulation angle of the points (degrees)."""
     focal_source: str
     """Where the starting focal length came from: 'given', 'exif' or 'guess'."""
+    photos: list[PhotoPlacement]
+    """Each photo in the order given: placed or left out (with the reason), its matches,
+    points, error and how firmly its orientation is fixed."""
 
-    def summary(self) -> dict[str, float | int | str]:
-        """The figures reported with a job (views, points, error, angle, seconds)."""
+    @property
+    def left_out(self) -> list[PhotoPlacement]:
+        """The photos without a camera (each names why)."""
+        return [p for p in self.photos if not p.placed]
+
+    def summary(self) -> dict[str, Any]:
+        """The figures reported with a job (views, points, error, angle, seconds, photos)."""
         return {
             "views": len(self.cameras.frames),
             "points": len(self.points),
@@ -75,6 +95,7 @@ class CameraEstimate:
             "seconds": round(self.seconds, 2),
             "attempt": self.attempt,
             "focal": self.focal_source,
+            "photos": [p.model_dump(mode="json") for p in self.photos],
         }
 
 
@@ -139,6 +160,11 @@ def estimate_cameras(
     if problem is not None or rec is None:
         hint = f"; {LEARNED_NEEDS_FOCAL}" if skipped_learned else ""
         raise CameraEstimationError(f"cannot estimate the cameras: {problem}{hint}")
+    reasons = left_out(shown, stats, rec, ATTEMPTS[k].min_inliers) or {}
+    if reasons:
+        _refuse_mirrored(image_dir, names, shown, reasons, rec, ATTEMPTS[k].min_inliers, seed)
+    for _, reason in sorted(reasons.items()):
+        log.warning("photo left out of the camera estimate: %s", reason)
     frame = normalise(rec)
     fx, fy, cx, cy = rec.intrinsics
     frames = [
@@ -153,6 +179,7 @@ def estimate_cameras(
             height=height,
         )
         for i, name in enumerate(names)
+        if i in frame.world_to_camera
     ]
     cameras = CamerasFile(
         convention=AxisConvention.opencv,
@@ -171,7 +198,55 @@ def estimate_cameras(
         reprojection_error_px=rec.reprojection_error_px,
         triangulation_angle_deg=median_triangulation_angle_deg(rec),
         focal_source=source,
+        photos=photo_report(shown, stats, rec, reasons),
     )
+
+
+def _refuse_mirrored(
+    image_dir: Path, names: list[str], shown: list[str], reasons: dict[int, str],
+    rec: Reconstruction, min_inliers: int, seed: int,
+) -> None:  # fmt: skip
+    """Raise when a photo about to be left out is mirrored (:mod:`.mirror`): the user meant
+    to give it, and the original would be placed."""
+    flipped = mirrored(image_dir, names, sorted(reasons), sorted(rec.world_to_camera),
+                       min_inliers, seed)  # fmt: skip
+    if flipped:
+        i, (j, count) = min(flipped.items())
+        raise CameraEstimationError(
+            f"cannot estimate the cameras: {photo(shown, i)} looks mirrored (flipped left to "
+            f"right): flipped back it shares {count} consistent matches with "
+            f"{photo(shown, j)}, as it is it cannot be placed; give the camera's original photo"
+        )
+
+
+def photo_report(
+    names: list[str], stats: MatchStats, rec: Reconstruction, reasons: dict[int, str]
+) -> list[PhotoPlacement]:
+    """Per photo (in the order of ``names``): placed or left out with ``reasons[i]``, its
+    verified matches, and for a placed one its points, mean reprojection error and
+    orientation spread."""
+    placed, problem = rec.bundle_problem()
+    error = np.linalg.norm(residuals(problem), axis=1)
+    spread = rotation_std_by_photo(rec)
+    report = []
+    for i, name in enumerate(names):
+        matches = sum(stats.inliers(i, j) for j in range(len(names)) if j != i)
+        if i not in rec.world_to_camera:
+            report.append(PhotoPlacement(name=name, placed=False, matches=matches,
+                                         reason=reasons.get(i)))  # fmt: skip
+            continue
+        mine = problem.camera_index == placed.index(i)
+        report.append(
+            PhotoPlacement(
+                name=name,
+                placed=True,
+                matches=matches,
+                points=int(mine.sum()),
+                error_px=round(float(error[mine].mean()), 3) if mine.any() else None,
+                rotation_std_deg=round(spread[i], 3),
+            )
+        )
+    return report
 
 
 def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:

@@ -10,6 +10,7 @@ import numpy as np
 
 from sparsesplat.engine.sfm.attempts import Attempt
 from sparsesplat.engine.sfm.colmap import require_pycolmap
+from sparsesplat.engine.sfm.uncertainty import BundleProblem
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,18 @@ class MatchStats:
         return stats.inliers if stats else 0
 
 
+@dataclass(frozen=True)
+class Observed:
+    """The observations of a reconstruction's points, one row each."""
+
+    photo: np.ndarray
+    """(M,) int: the photo index (in the order given) that made the observation."""
+    point: np.ndarray
+    """(M,) int: the point observed (row of ``Reconstruction.points``)."""
+    pixels: np.ndarray
+    """(M, 2) float64: where, in COLMAP's pixels (centres at +0.5)."""
+
+
 @dataclass
 class Reconstruction:
     """A COLMAP model in plain arrays, photos indexed in the order given."""
@@ -69,6 +82,24 @@ class Reconstruction:
     """The photo indices observing each point."""
     reprojection_error_px: float
     """Mean reprojection error over all observations."""
+    observations: Observed
+    """Which photo saw which point where: the bundle adjustment's data."""
+
+    def bundle_problem(self) -> tuple[list[int], BundleProblem]:
+        """The placed photos' indices in order, and the solution as a :class:`BundleProblem`
+        (its cameras in that order)."""
+        placed = sorted(self.world_to_camera)
+        row = np.full(max(placed) + 1, -1, dtype=np.int64)
+        row[placed] = np.arange(len(placed))
+        problem = BundleProblem(
+            world_to_camera=np.stack([self.world_to_camera[i] for i in placed]),
+            intrinsics=self.intrinsics,
+            points=self.points,
+            camera_index=row[self.observations.photo],
+            point_index=self.observations.point,
+            pixels=self.observations.pixels,
+        )
+        return placed, problem
 
 
 def run_colmap(
@@ -196,10 +227,15 @@ def _plain(model: Any, names: list[str]) -> Reconstruction:
     )
     image_index = {image_id: names.index(image.name) for image_id, image in model.images.items()}
     points, colours, views = [], [], []
-    for point in model.points3D.values():
+    photo, point_row, pixels = [], [], []
+    for row, point in enumerate(model.points3D.values()):
         points.append(np.asarray(point.xyz, dtype=np.float64))
         colours.append(np.asarray(point.color, dtype=np.float32) / 255.0)
         views.append(sorted({image_index[e.image_id] for e in point.track.elements}))
+        for e in point.track.elements:
+            photo.append(image_index[e.image_id])
+            point_row.append(row)
+            pixels.append(np.asarray(model.images[e.image_id].points2D[e.point2D_idx].xy))
     return Reconstruction(
         world_to_camera=poses,
         intrinsics=(float(fx), float(fy), float(cx), float(cy)),
@@ -207,4 +243,9 @@ def _plain(model: Any, names: list[str]) -> Reconstruction:
         colours=np.asarray(colours, dtype=np.float32).reshape(-1, 3),
         point_views=views,
         reprojection_error_px=float(model.compute_mean_reprojection_error()),
+        observations=Observed(
+            photo=np.asarray(photo, dtype=np.int64),
+            point=np.asarray(point_row, dtype=np.int64),
+            pixels=np.asarray(pixels, dtype=np.float64).reshape(-1, 2),
+        ),
     )

@@ -20,15 +20,17 @@ ALLOWED: dict[str, set[str]] = {
     "worker": {"worker", "api", "engine"},
     "engine": {"engine", "api"},
 }
-# The engine may import five light parts of api, each shared with the torch-free SDK so that
+# The engine may import six light parts of api, each shared with the torch-free SDK so that
 # one definition serves both: the pure-pydantic camera schemas (one schema validates
-# cameras.json and render cameras everywhere), the render schemas (render modes, live-view
-# frames), the native kernels' build status file (written by the engine's build, read by the
-# torch-free server), the scene-format readers (file layouts, splits, pose conventions; the
+# cameras.json and render cameras everywhere), the camera estimation's report (written by the
+# engine, carried by a job), the render schemas (render modes, live-view frames), the native
+# kernels' build status file (written by the engine's build, read by the torch-free server),
+# the scene-format readers (file layouts, splits, pose conventions; the
 # engine wraps them into torch Scenes), and the shared names. Settings, logging, job and store
 # modules stay out of the engine. Each entry covers the module or package and everything below it.
 ENGINE_MAY_IMPORT_FROM_API = {
     "sparsesplat.api.cameras",
+    "sparsesplat.api.camera_estimation",
     "sparsesplat.api.scenes",
     "sparsesplat.api.names",
     "sparsesplat.api.renders",
@@ -40,6 +42,7 @@ ENGINE_MAY_IMPORT_FROM_API = {
 # are plain literals: standard library only.
 LIGHT_DEPENDENCIES = {
     "sparsesplat.api.cameras": {"pydantic"},
+    "sparsesplat.api.camera_estimation": {"pydantic"},
     "sparsesplat.api.scenes": {"numpy"},
     "sparsesplat.api.names": set(),
     "sparsesplat.api.renders": {"pydantic"},

@@ -128,6 +128,13 @@ export function mount(container, { jobId }) {
       // Cameras estimated from the photos, and how well they fit.
       const c = p.cameras;
       items.push(["Cameras", `estimated (${c.attempt}): ${c.views} photos placed, ${c.points.toLocaleString()} points, ${c.reprojection_error_px.toFixed(2)} px reprojection error, ${c.triangulation_angle_deg.toFixed(1)}° median triangulation angle`]);
+      // Each photo: its matches and fit, or why it was left out.
+      for (const photo of c.photos || []) {
+        const fit = photo.placed
+          ? `placed: ${photo.matches.toLocaleString()} matches, ${photo.points.toLocaleString()} points, ${photo.error_px != null ? photo.error_px.toFixed(2) : "?"} px error, direction ±${photo.rotation_std_deg != null ? photo.rotation_std_deg.toFixed(2) : "?"}°`
+          : `left out (${photo.matches.toLocaleString()} matches): ${photo.reason || "not placed"}`;
+        items.push([photo.name, fit]);
+      }
     }
     if (job.state === "queued") items.unshift(["Queue", `${job.queue_position ?? "?"} job(s) ahead`]);
     details.replaceChildren(...items.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));

