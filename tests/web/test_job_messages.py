@@ -133,3 +133,48 @@ def test_a_long_error_wraps_on_the_job_page_and_in_the_jobs_list(
     assert page.get_attribute(f"{row} td[title]", "title") == failed["error"]
     _assert_wraps_inside(page.evaluate(_BOX, f"{row} .error-text"), "the jobs list's error")
     page.screenshot(path=str(artifacts / f"jobs-error-{width}.png"), full_page=True)
+
+
+@pytest.fixture(scope="module")
+def photos_job(service: LiveService, tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """A photos-only job of three photos of one scene and a fourth of another, ended: the
+    fourth is left out by name and the job trains on the three."""
+    pytest.importorskip("pycolmap")
+    from tests.engine.sfm.textured import camera_poses, write_photos
+
+    folder = tmp_path_factory.mktemp("photos")
+    paths = write_photos(folder, camera_poses(3))
+    paths += write_photos(folder, camera_poses(1), seed=2, prefix="stray")
+    spec = {"iterations": 50, "depth_prior": "none", "color_model": "sh", "init": "sparse"}
+    parts: list[tuple[str, Any]] = [("spec", (None, json.dumps(spec)))]
+    parts += [("images", (p.name, p.read_bytes(), "image/png")) for p in paths]
+    answer = httpx.post(f"{service.url}/v1/jobs", files=parts, timeout=60)
+    assert answer.status_code == 201, answer.text
+    job = wait_state(service.url, answer.json()["id"], TERMINAL, timeout=600)
+    assert job["state"] == "succeeded" and job["warnings"], job
+    return job
+
+
+def test_job_page_lists_each_photo_placed_or_left_out(
+    job_page: Callable[[str, str], Any], photos_job: Any, width: int, artifacts: Path
+) -> None:
+    page = job_page(photos_job["id"], "#job-details dt")
+    terms = page.locator("#job-details dt").all_text_contents()
+    values = page.locator("#job-details dd").all_text_contents()
+    shown = dict(zip(terms, values, strict=True))
+    photos = photos_job["progress"]["cameras"]["photos"]
+    assert [p["name"] for p in photos] == [
+        "photo_0.png",
+        "photo_1.png",
+        "photo_2.png",
+        "stray_0.png",
+    ]
+    for p in photos[:3]:
+        assert shown[p["name"]].startswith(
+            f"placed: {p['matches']:,} matches, {p['points']:,} points"
+        )
+        assert f"{p['error_px']:.2f} px error" in shown[p["name"]]
+    stray = photos[3]
+    assert shown["stray_0.png"] == f"left out ({stray['matches']:,} matches): {stray['reason']}"
+    assert page.evaluate("document.documentElement.scrollWidth") <= width
+    page.screenshot(path=str(artifacts / f"job-photos-{width}.png"), full_page=True)
