@@ -176,9 +176,10 @@ def _loose_photo(names: list[str], rec: Reconstruction) -> str | None:
     spread = rotation_std_by_photo(rec)
     i = max(spread, key=lambda k: spread[k])
     if not spread[i] <= MAX_ROTATION_STD_DEG:  # also catches nan and inf
+        by = f"{spread[i]:.1f}°" if math.isfinite(spread[i]) else "any angle"
         return (
             f"{photo(names, i)} is placed but its matches do not pin it down: its direction "
-            f"could be off by {spread[i]:.1f}° (one standard deviation; at most "
+            f"could be off by {by} (one standard deviation; at most "
             f"{MAX_ROTATION_STD_DEG:g}° accepted), so the estimate may be a wrong frame. The "
             "matched detail covers too little of the photos: fill more of the frame with the "
             "object, use larger photos, or take them closer together"

@@ -242,11 +242,17 @@ def photo_report(
                 placed=True,
                 matches=matches,
                 points=int(mine.sum()),
-                error_px=round(float(error[mine].mean()), 3) if mine.any() else None,
-                rotation_std_deg=round(spread[i], 3),
+                error_px=_finite(float(error[mine].mean())) if mine.any() else None,
+                rotation_std_deg=_finite(spread[i]),
             )
         )
     return report
+
+
+def _finite(value: float) -> float | None:
+    """``value`` to 3 decimals, or None when it is not finite (a degenerate solution), so that
+    the report stays valid JSON."""
+    return round(value, 3) if np.isfinite(value) else None
 
 
 def _common_size(paths: list[Path], shown: list[str]) -> tuple[int, int]:

@@ -85,6 +85,8 @@ def relative_rotation_std_deg(problem: BundleProblem) -> np.ndarray:
             for ob in obs:
                 cb = 6 * problem.camera_index[ob]
                 s[ca : ca + 6, cb : cb + 6] -= left[a] @ w[ob].T
+    if not np.isfinite(s).all():  # a point on a camera's plane: nothing can be said
+        return np.where(np.eye(n, dtype=bool), 0.0, np.inf)
     free = 6 * n + 3 * p - 7
     sigma2 = float(np.sum(residuals(problem) ** 2)) / max(2 * m - free, 1)
     covariance = np.linalg.pinv(s, rcond=1e-10, hermitian=True) * sigma2

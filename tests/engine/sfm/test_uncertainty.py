@@ -132,6 +132,23 @@ def test_a_small_far_object_leaves_the_cameras_loose() -> None:
     assert far.max() > 2 * MAX_ROTATION_STD_DEG
 
 
+def test_a_point_on_a_camera_plane_gives_an_infinite_spread_that_sinks_a_partial_set() -> None:
+    problem = _problem(seed=8, radius=1.5, distance=4.0, noise_px=0.3)
+    points = problem.points.copy()
+    centre = -problem.world_to_camera[0, :3, :3].T @ problem.world_to_camera[0, :3, 3]
+    points[0] = centre  # depth 0 in camera 0
+    planted = BundleProblem(
+        problem.world_to_camera, problem.intrinsics, points, problem.camera_index,
+        problem.point_index, problem.pixels,
+    )  # fmt: skip
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = relative_rotation_std_deg(planted)
+        assert np.all(np.diag(spread) == 0) and np.all(np.isinf(spread[~np.eye(3, dtype=bool)]))
+        stats = _stats(4, {(0, 1): 40, (1, 2): 40, (0, 2): 40})
+        problem_text = result_problem(NAMES, stats, _reconstruction(planted, [0, 1, 2]), 30)
+    assert problem_text is not None and "could be off by any angle" in problem_text
+
+
 def _reconstruction(problem: BundleProblem, photos: list[int]) -> Reconstruction:
     return Reconstruction(
         world_to_camera={i: problem.world_to_camera[k] for k, i in enumerate(photos)},
