@@ -20,8 +20,8 @@ struct vi {
 };
 
 // r.h[k] = expr for each part k (expr reads the k of the enclosing loop); GCC unrolls it.
-#define RASTER_PARTWISE(T, expr)                        \
-  T r;                                                  \
+#define RASTER_PARTWISE(T, expr)                    \
+  T r;                                              \
   for (int k = 0; k < kParts; ++k) r.h[k] = (expr); \
   return r
 
