@@ -25,24 +25,7 @@
 
 namespace MLP_NS {
 
-#if MLP_AVX512
-constexpr int W = 16;  // floats per vector
-typedef float vf __attribute__((vector_size(64)));
-static inline vf load(const float* p) { return (vf)_mm512_loadu_ps(p); }
-static inline void store(float* p, vf v) { _mm512_storeu_ps(p, (__m512)v); }
-static inline vf bcast(float x) { return (vf)_mm512_set1_ps(x); }
-static inline vf fmadd(vf a, vf b, vf c) {
-  return (vf)_mm512_fmadd_ps((__m512)a, (__m512)b, (__m512)c);
-}
-// max(0, x) with the operands in this order returns x when x is NaN, as torch.relu does.
-static inline vf relu(vf x) { return (vf)_mm512_max_ps(_mm512_setzero_ps(), (__m512)x); }
-// x where m > 0, else 0 (ReLU backward: a NaN activation passes no gradient, as in torch).
-static inline vf where_positive(vf m, vf x) {
-  const __mmask16 k = _mm512_cmp_ps_mask((__m512)m, _mm512_setzero_ps(), _CMP_GT_OQ);
-  return (vf)_mm512_maskz_mov_ps(k, (__m512)x);
-}
-constexpr int kAccumulators = 16;  // vector registers one product tile accumulates in (of 32)
-#elif MLP_PORTABLE
+#if MLP_PORTABLE
 // GCC generic 16-byte vectors: one q register on aarch64's NEON (32 of them).
 constexpr int W = 4;
 typedef float vf __attribute__((vector_size(16)));
@@ -61,23 +44,34 @@ static inline vf fmadd(vf a, vf b, vf c) {
 }
 // As the x86 max(0, x): 0 > x ? 0 : x, so a NaN x passes (as torch.relu).
 static inline vf relu(vf x) { return vf{} > x ? vf{} : x; }
-static inline vf where_positive(vf m, vf x) { return m > vf{} ? x : vf{}; }
 constexpr int kAccumulators = 16;
 #else
+// x86: the same operations at either width; MLP_X86(op) names the width's intrinsic _mm*_op.
+#if MLP_AVX512
+constexpr int W = 16;  // floats per vector
+typedef __m512 vx;
+#define MLP_X86(op) _mm512_##op
+constexpr int kAccumulators = 16;  // vector registers one product tile accumulates in (of 32)
+#else
 constexpr int W = 8;
-typedef float vf __attribute__((vector_size(32)));
-static inline vf load(const float* p) { return (vf)_mm256_loadu_ps(p); }
-static inline void store(float* p, vf v) { _mm256_storeu_ps(p, (__m256)v); }
-static inline vf bcast(float x) { return (vf)_mm256_set1_ps(x); }
-static inline vf fmadd(vf a, vf b, vf c) {
-  return (vf)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c);
-}
-static inline vf relu(vf x) { return (vf)_mm256_max_ps(_mm256_setzero_ps(), (__m256)x); }
-static inline vf where_positive(vf m, vf x) {
-  return (vf)_mm256_and_ps(_mm256_cmp_ps((__m256)m, _mm256_setzero_ps(), _CMP_GT_OQ), (__m256)x);
-}
+typedef __m256 vx;
+#define MLP_X86(op) _mm256_##op
 constexpr int kAccumulators = 8;  // of AVX2's 16 registers
 #endif
+typedef float vf __attribute__((vector_size(sizeof(vx))));
+static inline vf load(const float* p) { return (vf)MLP_X86(loadu_ps)(p); }
+static inline void store(float* p, vf v) { MLP_X86(storeu_ps)(p, (vx)v); }
+static inline vf bcast(float x) { return (vf)MLP_X86(set1_ps)(x); }
+static inline vf fmadd(vf a, vf b, vf c) {
+  return (vf)MLP_X86(fmadd_ps)((vx)a, (vx)b, (vx)c);
+}
+// max(0, x) with the operands in this order returns x when x is NaN, as torch.relu does.
+static inline vf relu(vf x) { return (vf)MLP_X86(max_ps)(MLP_X86(setzero_ps)(), (vx)x); }
+#undef MLP_X86
+#endif
+// x where m > 0, else 0 (ReLU backward: a NaN activation passes no gradient, as in torch). One
+// compare (ordered: false for NaN) and a masked move or an and, on each target.
+static inline vf where_positive(vf m, vf x) { return m > vf{} ? x : vf{}; }
 
 // What a product tile does with its sums before storing them.
 enum Epilogue { kPlain, kRelu, kWherePositive };

@@ -47,10 +47,16 @@ struct Window {
   int radius;
 };
 
-// Rows of the vertical pass that exist for output row i: taps [t0, t1).
-inline void tap_range(const Window& win, int64_t i, int64_t H, int& t0, int& t1) {
-  t0 = (int)std::max<int64_t>(0, win.radius - i);
-  t1 = (int)std::min<int64_t>(win.size, H - i + win.radius);
+// Rows of the vertical pass that exist for output row i of an (H, W) plane: taps [t0, t1),
+// tap t0 reading the plane's row that starts at offset `first`.
+struct Taps {
+  int t0, t1;
+  int64_t first;
+};
+inline Taps tap_range(const Window& win, int64_t i, int64_t H, int64_t W) {
+  const int t0 = (int)std::max<int64_t>(0, win.radius - i);
+  const int t1 = (int)std::min<int64_t>(win.size, H - i + win.radius);
+  return {t0, t1, (i + t0 - win.radius) * W};
 }
 
 // The blurs are written with AVX2 intrinsics (v8_* below), 8 pixels of a row at a time with all taps summed
@@ -110,9 +116,7 @@ inline void horizontal(const float* __restrict pad, int64_t W, const Window& win
 inline void vertical_moments(const float* __restrict x, const float* __restrict y, int64_t H,
                              int64_t W, int64_t i, const Window& win, float* __restrict vx,
                              float* __restrict vp, float* __restrict vq) {
-  int t0, t1;
-  tap_range(win, i, H, t0, t1);
-  const int64_t first = (i + t0 - win.radius) * W;
+  const auto [t0, t1, first] = tap_range(win, i, H, W);
   int64_t j = 0;
   for (; j + kLanes <= W; j += kLanes) {
     v8 ax = v8_zero(), ap = ax, aq = ax;
@@ -150,9 +154,7 @@ inline void vertical3(const float* __restrict a, const float* __restrict b,
                       const float* __restrict c, int64_t H, int64_t W, int64_t i,
                       const Window& win, float* __restrict va, float* __restrict vb,
                       float* __restrict vc) {
-  int t0, t1;
-  tap_range(win, i, H, t0, t1);
-  const int64_t first = (i + t0 - win.radius) * W;
+  const auto [t0, t1, first] = tap_range(win, i, H, W);
   int64_t j = 0;
   for (; j + kLanes <= W; j += kLanes) {
     v8 sa = v8_zero(), sb = sa, sc = sa;

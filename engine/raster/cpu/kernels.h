@@ -97,46 +97,10 @@ static inline void add_lane_sums(const vf* v, int n, float* out) {
 // instruction per half.
 typedef float hf __attribute__((vector_size(32), __may_alias__));
 typedef int32_t hi __attribute__((vector_size(32), __may_alias__));
-
-struct vf {
-  hf h[2];
-  float& operator[](int i) { return reinterpret_cast<float*>(h)[i]; }
-  float operator[](int i) const { return reinterpret_cast<const float*>(h)[i]; }
-};
-struct vi {
-  hi h[2];
-  int32_t& operator[](int i) { return reinterpret_cast<int32_t*>(h)[i]; }
-  int32_t operator[](int i) const { return reinterpret_cast<const int32_t*>(h)[i]; }
-};
-
-#define RASTER_VF_BINOP(op)                                                                    \
-  static inline vf operator op(vf a, vf b) { return vf{{a.h[0] op b.h[0], a.h[1] op b.h[1]}}; } \
-  static inline vf operator op(vf a, float b) { return vf{{a.h[0] op b, a.h[1] op b}}; }       \
-  static inline vf operator op(float a, vf b) { return vf{{a op b.h[0], a op b.h[1]}}; }       \
-  static inline vf& operator op##=(vf & a, vf b) { return a = a op b; }
-RASTER_VF_BINOP(+)
-RASTER_VF_BINOP(-)
-RASTER_VF_BINOP(*)
-RASTER_VF_BINOP(/)
-#undef RASTER_VF_BINOP
-static inline vf operator-(vf a) { return vf{{-a.h[0], -a.h[1]}}; }
-
-#define RASTER_VF_CMP(op)                                                                      \
-  static inline vi operator op(vf a, vf b) { return vi{{a.h[0] op b.h[0], a.h[1] op b.h[1]}}; } \
-  static inline vi operator op(vf a, float b) { return vi{{a.h[0] op b, a.h[1] op b}}; }
-RASTER_VF_CMP(<)
-RASTER_VF_CMP(>)
-RASTER_VF_CMP(<=)
-RASTER_VF_CMP(>=)
-#undef RASTER_VF_CMP
-
-static inline vi operator&(vi a, vi b) { return vi{{a.h[0] & b.h[0], a.h[1] & b.h[1]}}; }
-static inline vi& operator&=(vi& a, vi b) { return a = a & b; }
-static inline vi operator~(vi a) { return vi{{~a.h[0], ~a.h[1]}}; }
-static inline vi operator+(vi a, vi b) { return vi{{a.h[0] + b.h[0], a.h[1] + b.h[1]}}; }
-static inline vi operator<<(vi a, int s) { return vi{{a.h[0] << s, a.h[1] << s}}; }
-static inline vi operator<(vi a, vi b) { return vi{{a.h[0] < b.h[0], a.h[1] < b.h[1]}}; }
-static inline vi operator+(vi a, int32_t b) { return vi{{a.h[0] + b, a.h[1] + b}}; }
+constexpr int kParts = 2;  // vec_split.h: the row types, their operators and conversions
+typedef hf pf;
+typedef hi pi;
+#include "vec_split.h"
 
 // Selects by vblendvps, which reads each lane's sign bit: the masks here are all 0 / -1 lanes
 // (comparisons and their and / andnot). GCC's ?: on a mask vector tests it against zero first,
@@ -151,14 +115,6 @@ static inline vi vseli(vi m, vi a, vi b) {
   return vi{{(hi)blendv(m.h[0], (hf)a.h[0], (hf)b.h[0]),
              (hi)blendv(m.h[1], (hf)a.h[1], (hf)b.h[1])}};
 }
-static inline vi to_int(vf x) {
-  return vi{{__builtin_convertvector(x.h[0], hi), __builtin_convertvector(x.h[1], hi)}};
-}
-static inline vf to_float(vi x) {
-  return vf{{__builtin_convertvector(x.h[0], hf), __builtin_convertvector(x.h[1], hf)}};
-}
-static inline vi bits_of(vf x) { return vi{{(hi)x.h[0], (hi)x.h[1]}}; }
-static inline vf from_bits(vi x) { return vf{{(hf)x.h[0], (hf)x.h[1]}}; }
 
 // Bit i set when lane i of the mask (0 or -1 per lane) is set.
 static inline uint32_t movemask(vi m) {
@@ -198,6 +154,7 @@ static inline void add_lane_sums(const vf* v, int n, float* out) {
     for (int i = 0; i < m; ++i) out[base + i] += sums[i];
   }
 }
+#undef RASTER_PARTWISE
 #endif
 
 // dst = v. On AVX2 a plain aggregate copy of a value that stays live afterwards is done by GCC in

@@ -3,8 +3,9 @@
 // code is a third, selectable variant, which tests its numerics natively).
 //
 // Included by kernels.h inside its namespace, in place of the AVX-512 and AVX2 layers, and
-// defines what they define: the row types vf / vi, their operators, selects, conversions, lane
-// masks, lane sums, fused multiply-adds, sqrt / ceil / floor and the reciprocal's estimate.
+// defines what they define: the row types vf / vi, their operators and conversions (written
+// part-wise in vec_split.h, shared with the AVX2 layer), selects, lane masks, lane sums, fused
+// multiply-adds, sqrt / ceil / floor and the reciprocal's estimate.
 //
 // A tile row (16 floats) is four 16-byte quarters, each a generic vector of the width every
 // SIMD target has (one q register on NEON, one xmm on x86), with each operation written
@@ -17,59 +18,13 @@
 constexpr int kQuarters = 4;
 typedef float qf __attribute__((vector_size(16), __may_alias__));
 typedef int32_t qi __attribute__((vector_size(16), __may_alias__));
+constexpr int kParts = kQuarters;  // vec_split.h: the row types, their operators and conversions
+typedef qf pf;
+typedef qi pi;
+#include "vec_split.h"
 
-struct vf {
-  qf h[kQuarters];
-  float& operator[](int i) { return reinterpret_cast<float*>(h)[i]; }
-  float operator[](int i) const { return reinterpret_cast<const float*>(h)[i]; }
-};
-struct vi {
-  qi h[kQuarters];
-  int32_t& operator[](int i) { return reinterpret_cast<int32_t*>(h)[i]; }
-  int32_t operator[](int i) const { return reinterpret_cast<const int32_t*>(h)[i]; }
-};
-
-// r.h[k] = expr for each quarter k (expr reads the k of the enclosing loop); GCC unrolls it.
-#define RASTER_QUARTERWISE(T, expr)                        \
-  T r;                                                     \
-  for (int k = 0; k < kQuarters; ++k) r.h[k] = (expr); \
-  return r
-
-#define RASTER_VF_BINOP(op)                                                                \
-  static inline vf operator op(vf a, vf b) { RASTER_QUARTERWISE(vf, a.h[k] op b.h[k]); } \
-  static inline vf operator op(vf a, float b) { RASTER_QUARTERWISE(vf, a.h[k] op b); }   \
-  static inline vf operator op(float a, vf b) { RASTER_QUARTERWISE(vf, a op b.h[k]); }   \
-  static inline vf& operator op##=(vf & a, vf b) { return a = a op b; }
-RASTER_VF_BINOP(+)
-RASTER_VF_BINOP(-)
-RASTER_VF_BINOP(*)
-RASTER_VF_BINOP(/)
-#undef RASTER_VF_BINOP
-static inline vf operator-(vf a) { RASTER_QUARTERWISE(vf, -a.h[k]); }
-
-#define RASTER_VF_CMP(op)                                                                  \
-  static inline vi operator op(vf a, vf b) { RASTER_QUARTERWISE(vi, a.h[k] op b.h[k]); } \
-  static inline vi operator op(vf a, float b) { RASTER_QUARTERWISE(vi, a.h[k] op b); }
-RASTER_VF_CMP(<)
-RASTER_VF_CMP(>)
-RASTER_VF_CMP(<=)
-RASTER_VF_CMP(>=)
-#undef RASTER_VF_CMP
-
-static inline vi operator&(vi a, vi b) { RASTER_QUARTERWISE(vi, a.h[k] & b.h[k]); }
-static inline vi& operator&=(vi& a, vi b) { return a = a & b; }
-static inline vi operator~(vi a) { RASTER_QUARTERWISE(vi, ~a.h[k]); }
-static inline vi operator+(vi a, vi b) { RASTER_QUARTERWISE(vi, a.h[k] + b.h[k]); }
-static inline vi operator<<(vi a, int s) { RASTER_QUARTERWISE(vi, a.h[k] << s); }
-static inline vi operator<(vi a, vi b) { RASTER_QUARTERWISE(vi, a.h[k] < b.h[k]); }
-static inline vi operator+(vi a, int32_t b) { RASTER_QUARTERWISE(vi, a.h[k] + b); }
-
-static inline vf vsel(vi m, vf a, vf b) { RASTER_QUARTERWISE(vf, m.h[k] ? a.h[k] : b.h[k]); }
-static inline vi vseli(vi m, vi a, vi b) { RASTER_QUARTERWISE(vi, m.h[k] ? a.h[k] : b.h[k]); }
-static inline vi to_int(vf x) { RASTER_QUARTERWISE(vi, __builtin_convertvector(x.h[k], qi)); }
-static inline vf to_float(vi x) { RASTER_QUARTERWISE(vf, __builtin_convertvector(x.h[k], qf)); }
-static inline vi bits_of(vf x) { RASTER_QUARTERWISE(vi, (qi)x.h[k]); }
-static inline vf from_bits(vi x) { RASTER_QUARTERWISE(vf, (qf)x.h[k]); }
+static inline vf vsel(vi m, vf a, vf b) { RASTER_PARTWISE(vf, m.h[k] ? a.h[k] : b.h[k]); }
+static inline vi vseli(vi m, vi a, vi b) { RASTER_PARTWISE(vi, m.h[k] ? a.h[k] : b.h[k]); }
 
 // Bit i set when lane i of the mask (0 or -1 per lane) is set: each lane keeps its own bit of
 // its quarter, and the quarter's four bits are disjoint, so their sum is their union.
@@ -141,7 +96,7 @@ static inline vf vsqrt(vf x) { RASTER_LANEWISE(__builtin_sqrtf(x.h[k][l])); }
 static inline vf vceil(vf x) { RASTER_LANEWISE(__builtin_ceilf(x.h[k][l])); }
 static inline vf vfloor(vf x) { RASTER_LANEWISE(__builtin_floorf(x.h[k][l])); }
 #undef RASTER_LANEWISE
-#undef RASTER_QUARTERWISE
+#undef RASTER_PARTWISE
 
 // The reciprocal's estimate for vrcp_refine: the quotient itself (rounded; the refinement
 // keeps it). NEON's estimate (vrecpe, relative error 2^-8) is too coarse for one third-order
