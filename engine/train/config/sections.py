@@ -1,4 +1,6 @@
-"""The sections of the training configuration, one per part of the trainer.
+"""The sections of the training configuration for the loop itself: init, colour, optimizer,
+photometric loss, depth, densification, records, guard and pose refinement (the regularizer
+parts' sections are in ``regularizer_sections.py``).
 
 Values follow the DNGaussian reference code (dngaussian-method.md §1.5-§1.9); the defaults are
 its 6000-iteration LLFF recipe. Each part of the trainer takes its own section (``config.depth``
@@ -21,20 +23,11 @@ __all__ = [
     "AuxiliaryStepName",
     "Box",
     "ColorConfig",
-    "ConsistencyConfig",
-    "ConsistencyPartnersName",
-    "CorrespondenceConfig",
     "DensifyConfig",
     "DepthConfig",
-    "DropoutConfig",
-    "DtuConfig",
     "GuardConfig",
     "InitConfig",
-    "MatcherName",
-    "MatchesConfig",
-    "NearPruneConfig",
     "OptimConfig",
-    "PartnerDepthName",
     "PhotometricConfig",
     "PoseConfig",
     "RecordConfig",
@@ -44,10 +37,6 @@ these as its public surface, so the list lives here, beside the definitions."""
 
 AuxiliaryStepName = Literal["separate", "joint"]
 """How the auxiliary passes (hard depth, soft depth, DTU background alpha) update the model."""
-ConsistencyPartnersName = Literal["nearest", "all"]
-"""Which training views the warp-consistency term warps into the current one."""
-PartnerDepthName = Literal["render", "last"]
-"""Where the warp-consistency term's occlusion check takes the partner view's depth from."""
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 """An axis-aligned box as (lowest corner, highest corner)."""
@@ -374,192 +363,6 @@ class GuardConfig:
     """Per-group limit on the running mean |update| of one photometric Adam step (means in
     units of the scene extent). Sane runs move ~10x less; a blow-up (e.g. learning rates 100x
     too high) moves more and is stopped with TrainingDiverged naming the group."""
-
-
-@dataclass(frozen=True)
-class DropoutConfig:
-    """``dropout``: DropGaussian (``regularizers/dropout.py``), on in the ``llff`` and
-    ``default`` presets."""
-
-    enabled: bool = False
-    """Drop each Gaussian from the photometric render with probability ``rate``, compensating
-    the kept opacities by ``1 / (1 - rate)``. Evaluation, export and the depth passes render
-    every Gaussian."""
-    rate: float = 0.1
-    """The drop rate in [0, 1) reached at the last iteration (progressive) or used throughout."""
-    progressive: bool = True
-    """Grow the rate linearly from 0 to ``rate`` over the run (the paper) instead of a
-    constant rate (the authors' snippet)."""
-
-    def validate(self) -> None:
-        """Raise :class:`ConfigError` naming the first invalid field."""
-        if not (math.isfinite(self.rate) and 0.0 <= self.rate < 1.0):
-            raise ConfigError(f"dropout.rate must be in [0, 1), got {self.rate}")
-
-
-@dataclass(frozen=True)
-class DtuConfig:
-    """``dtu``: the DTU black-background handling of the reference
-    (``regularizers/dtu_background.py``): a per-view dark-background mask and the pieces below;
-    thresholds per scan from the scene name."""
-
-    enabled: bool = False
-    """Build the part (the switches below apply only then)."""
-    blacken_target: bool = True
-    """Set the masked target pixels to black in the photometric loss."""
-    depth_fill: bool = True
-    """Fill the masked pixels of rendered and prior depth with their foreground means in the
-    hard and soft depth passes."""
-    alpha_loss: bool = True
-    """A pass of its own (after the soft-depth pass) pushing the rendered alpha on the masked
-    pixels to 0; moves only opacities."""
-    black_white: bool = True
-    """The near-black / near-white Gaussian rule at each densification."""
-
-
-@dataclass(frozen=True)
-class ConsistencyConfig:
-    """``consistency``: the warp-consistency term (``regularizers/consistency.py``), added to the
-    photometric loss: the partner training views warped into the current one through the
-    rendered depth."""
-
-    weight: float = 0.0
-    """Weight of the term; 0 = off (the part is not built)."""
-    start: int = 0
-    """The term applies for iterations > this."""
-    occlusion: bool = True
-    """Check occlusion with the partner view's depth (``partner_depth`` says where from)."""
-    partner_depth: PartnerDepthName = "render"
-    """``render``: a no-gradient depth render of the partner view each time (one more pass per
-    partner and iteration); ``last``: the depth of the partner's own latest photometric
-    render, kept when that view was trained (free, and a few iterations old: with 3 views each
-    is trained every third iteration; with DropGaussian, the render of the Gaussians that
-    iteration kept). A partner not trained yet is rendered."""
-    partners: ConsistencyPartnersName = "nearest"
-    """``nearest``: the one training view whose camera centre is nearest; ``all``: every other
-    training view, the term being the mean over them (one more no-gradient depth render and
-    warp per extra partner)."""
-
-    @property
-    def enabled(self) -> bool:
-        """Whether the term is on."""
-        return self.weight > 0
-
-    def validate(self) -> None:
-        """Raise :class:`ConfigError` naming the first invalid field."""
-        if not (math.isfinite(self.weight) and self.weight >= 0.0):
-            raise ConfigError(f"consistency.weight must be >= 0, got {self.weight}")
-
-
-MatcherName = Literal["xfeat-lighterglue", "xfeat-semidense", "xfeat-mnn", "disk-lightglue"]
-"""The matchers of ``engine/match`` (``engine.match.settings.METHODS``)."""
-
-
-@dataclass(frozen=True)
-class MatchesConfig:
-    """``matches``: the learned matches between the training photos and their triangulation
-    with the training cameras (``engine/match``), computed once per run, before the first
-    iteration, when ``init.add_matched`` or the correspondence term uses them (never
-    otherwise). Their seconds count as training seconds (the run's clock starts with them)."""
-
-    method: MatcherName = "xfeat-semidense"
-    """The matcher. XFeat's semi-dense matcher triangulated 3x the points of the sparse
-    XFeat + LighterGlue on flower and 1.6x on horns, closer to the plane sweep's depths
-    (docs/experiments/2026-11-28-matchers.md)."""
-    keypoints: int = 0
-    """Keypoints (semi-dense: coarse features) per photo; 0: the matcher's default."""
-    min_side: int = 800
-    """Photos whose longer side is shorter are enlarged to it before matching (0: never)."""
-    max_error_px: float = 2.0
-    """A triangulated point is kept when it reprojects within this many pixels in every
-    photo that sees it."""
-    min_angle_deg: float = 1.0
-    """... and was seen under at least this triangulation angle (degrees)."""
-
-    def validate(self) -> None:
-        """Raise :class:`ConfigError` naming the first invalid field."""
-        if self.keypoints != 0 and self.keypoints < 8:
-            raise ConfigError(f"matches.keypoints must be 0 or >= 8, got {self.keypoints}")
-        if self.min_side < 0:
-            raise ConfigError(f"matches.min_side must be >= 0, got {self.min_side}")
-        if not (math.isfinite(self.max_error_px) and self.max_error_px > 0):
-            raise ConfigError(f"matches.max_error_px must be > 0, got {self.max_error_px}")
-        if not (math.isfinite(self.min_angle_deg) and 0 <= self.min_angle_deg < 90):
-            raise ConfigError(f"matches.min_angle_deg must be in [0, 90), got {self.min_angle_deg}")
-
-
-@dataclass(frozen=True)
-class CorrespondenceConfig:
-    """``correspondence``: the matched-depth term (``regularizers/correspondence.py``), added
-    to the photometric loss: at each pixel where a training photo saw a matched, triangulated
-    point, the rendered depth must be that point's depth, so matched pixels of two photos land
-    on each other through the rendered geometry."""
-
-    weight: float = 0.0
-    """Weight of the term; 0 = off (the part is not built)."""
-    start: int = 0
-    """The term applies for iterations > this ..."""
-    until: int | None = None
-    """... and < this (None: to the end)."""
-    tolerance: float = 0.01
-    """Relative depth error below which a pixel costs nothing, at the least."""
-    pixel_error: float = 1.0
-    """The matches' pixel error (px) behind each point's own dead zone: a point seen under a
-    triangulation angle a by a camera of focal length f (px) has a relative depth uncertainty
-    of about pixel_error / (f tan a), so its pixels cost nothing within the larger of that and
-    ``tolerance``. Forward-facing captures triangulate at a few degrees (5 % at 3 degrees and
-    f = 400 px), object orbits at tens (0.4 % at 33 degrees). 0: ``tolerance`` alone."""
-    min_alpha: float = 0.5
-    """Pixels whose rendered opacity is below this are skipped (no surface to move yet)."""
-    max_error: float | None = None
-    """Observations whose relative depth error exceeds this are skipped on that iteration: a
-    match the render disagrees with by that much is more likely wrong (glass, repeated
-    structure) than a surface to pull there. None: every observation counts."""
-
-    @property
-    def enabled(self) -> bool:
-        """Whether the term is on."""
-        return self.weight > 0
-
-    def validate(self) -> None:
-        """Raise :class:`ConfigError` naming the first invalid field."""
-        if not (math.isfinite(self.weight) and self.weight >= 0.0):
-            raise ConfigError(f"correspondence.weight must be >= 0, got {self.weight}")
-        if not (math.isfinite(self.tolerance) and self.tolerance >= 0.0):
-            raise ConfigError(f"correspondence.tolerance must be >= 0, got {self.tolerance}")
-        if not (math.isfinite(self.pixel_error) and self.pixel_error >= 0.0):
-            raise ConfigError(f"correspondence.pixel_error must be >= 0, got {self.pixel_error}")
-        if not 0.0 <= self.min_alpha < 1.0:
-            raise ConfigError(f"correspondence.min_alpha must be in [0, 1), got {self.min_alpha}")
-        if self.max_error is not None and not (
-            math.isfinite(self.max_error) and self.max_error > 0.0
-        ):
-            raise ConfigError(f"correspondence.max_error must be > 0 or None, got {self.max_error}")
-
-
-@dataclass(frozen=True)
-class NearPruneConfig:
-    """``near_prune``: near-plane pruning of the reference's LLFF runs
-    (``regularizers/near_prune.py``): delete Gaussians close to the scene's render path in
-    training (the LLFF spiral; other formats: the training cameras) and leave those close to a
-    held-out camera out of its evaluation."""
-
-    enabled: bool = False
-    """Build the part."""
-    radius: float = 0.5
-    """The radius as a fraction of the scene's near bound (the reference's absolute 10 units
-    would delete most of a scene whose near bound is 1-3 units)."""
-    start: int = 2000
-    """The training-time prune runs for iterations > this ..."""
-    every: int = 25
-    """... on every this-many-th iteration."""
-
-    def validate(self) -> None:
-        """Raise :class:`ConfigError` naming the first invalid field."""
-        if not (math.isfinite(self.radius) and self.radius > 0.0):
-            raise ConfigError(f"near_prune.radius must be > 0, got {self.radius}")
-        if self.every < 1:
-            raise ConfigError(f"near_prune.every must be >= 1, got {self.every}")
 
 
 @dataclass(frozen=True)

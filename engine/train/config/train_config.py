@@ -14,18 +14,20 @@ from typing import Any
 
 from sparsesplat.engine.errors import ConfigError
 from sparsesplat.engine.model.raster import RasterConfig
-from sparsesplat.engine.train.config.sections import (
-    ColorConfig,
+from sparsesplat.engine.train.config.regularizer_sections import (
     ConsistencyConfig,
     CorrespondenceConfig,
-    DensifyConfig,
-    DepthConfig,
     DropoutConfig,
     DtuConfig,
-    GuardConfig,
-    InitConfig,
     MatchesConfig,
     NearPruneConfig,
+)
+from sparsesplat.engine.train.config.sections import (
+    ColorConfig,
+    DensifyConfig,
+    DepthConfig,
+    GuardConfig,
+    InitConfig,
     OptimConfig,
     PhotometricConfig,
     PoseConfig,
