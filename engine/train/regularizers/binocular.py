@@ -120,7 +120,8 @@ class BinocularConsistency:
         s = self.settings
         draw = float(torch.rand((), generator=self.generator, dtype=torch.float64))
         virtual = shifted_camera(camera, (2.0 * draw - 1.0) * self.max_shift)
-        seen = self.raster(*inputs, virtual, background)
+        means, log_scales, quats, opacity_logits, colors = inputs
+        seen = self.raster(means, log_scales, quats, opacity_logits, colors, virtual, background)
         virtual_depth = None
         if s.occlusion:
             virtual_depth = seen_depth(seen.depth.detach(), seen.alpha.detach())
