@@ -1,8 +1,8 @@
 """The sections of the training configuration for the switchable regularizer parts:
-DropGaussian, DTU's background pieces, warp consistency, learned matches and the
-correspondence term, near-camera pruning. Each part of the trainer takes its own section, so a
-setting is declared once; ``TrainConfig`` (``train_config.py``) gathers them with the loop's
-sections (``sections.py``).
+DropGaussian, DTU's background pieces, warp consistency, binocular self-consistency, learned
+matches and the correspondence term, near-camera pruning. Each part of the trainer takes its
+own section, so a setting is declared once; ``TrainConfig`` (``train_config.py``) gathers them
+with the loop's sections (``sections.py``).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import Literal
 from sparsesplat.engine.errors import ConfigError
 
 __all__ = [
+    "BinocularConfig",
     "ConsistencyConfig",
     "ConsistencyPartnersName",
     "CorrespondenceConfig",
@@ -106,6 +107,55 @@ class ConsistencyConfig:
         """Raise :class:`ConfigError` naming the first invalid field."""
         if not (math.isfinite(self.weight) and self.weight >= 0.0):
             raise ConfigError(f"consistency.weight must be >= 0, got {self.weight}")
+
+
+@dataclass(frozen=True)
+class BinocularConfig:
+    """``binocular``: binocular self-consistency (``regularizers/binocular.py``, after
+    Binocular3DGS), added to the photometric loss: the model is rendered from a virtual camera
+    shifted along the training camera's own x-axis, that render is warped back into the
+    training view through the training view's rendered depth, and compared with the training
+    photo. Every pixel of every training view is regularised, not only where another training
+    photo overlaps it."""
+
+    weight: float = 0.0
+    """Weight of the term; 0 = off (the part is not built)."""
+    baseline: float = 0.1
+    """The largest shift of the virtual camera, as a fraction of the scene extent (1.1 x the
+    largest distance of a training camera from their mean). Each use draws the shift
+    uniformly in [-baseline, baseline] x extent (Binocular3DGS: a magnitude uniform in [0, 0.4]
+    scene units and a random sign). Binocular3DGS's 0.4 is 0.115 of flower's extent (3.47,
+    COLMAP units) and 0.063 of horns' (6.32); the shift seen at depth z is fx x shift / z
+    pixels (flower's near bound, 22.6 units at fx 447: 7.9 px for 0.4 units)."""
+    start: int = 0
+    """The term applies for iterations > this (Binocular3DGS: the last third of its run) ..."""
+    until: int | None = None
+    """... and < this (None: to the end) ..."""
+    every: int = 1
+    """... on every this-many-th iteration (each use costs a render and its backward)."""
+    min_alpha: float = 0.5
+    """Training pixels whose rendered opacity is below this are left out (no depth to warp
+    with)."""
+    occlusion: bool = True
+    """Leave out the training pixels the virtual camera sees behind something else (its own
+    rendered depth, detached, disagrees by more than 5 %); Binocular3DGS masks only the
+    pixels that leave the virtual frame."""
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the term is on."""
+        return self.weight > 0
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.weight) and self.weight >= 0.0):
+            raise ConfigError(f"binocular.weight must be >= 0, got {self.weight}")
+        if not (math.isfinite(self.baseline) and self.baseline >= 0.0):
+            raise ConfigError(f"binocular.baseline must be >= 0, got {self.baseline}")
+        if self.every < 1:
+            raise ConfigError(f"binocular.every must be >= 1, got {self.every}")
+        if not 0.0 <= self.min_alpha < 1.0:
+            raise ConfigError(f"binocular.min_alpha must be in [0, 1), got {self.min_alpha}")
 
 
 MatcherName = Literal["xfeat-lighterglue", "xfeat-semidense", "xfeat-mnn", "disk-lightglue"]

@@ -15,6 +15,7 @@ from typing import Any
 from sparsesplat.engine.errors import ConfigError
 from sparsesplat.engine.model.raster import RasterConfig
 from sparsesplat.engine.train.config.regularizer_sections import (
+    BinocularConfig,
     ConsistencyConfig,
     CorrespondenceConfig,
     DropoutConfig,
@@ -95,6 +96,8 @@ class TrainConfig:
     """DTU background handling."""
     consistency: ConsistencyConfig = field(default_factory=ConsistencyConfig)
     """The warp-consistency term."""
+    binocular: BinocularConfig = field(default_factory=BinocularConfig)
+    """Binocular self-consistency with a virtual shifted camera."""
     near_prune: NearPruneConfig = field(default_factory=NearPruneConfig)
     """Near-plane pruning."""
     matches: MatchesConfig = field(default_factory=MatchesConfig)
@@ -197,6 +200,8 @@ SCHEDULE_FIELDS = (
     "color.sh_degree_interval",
     "densify.opacity_reset_interval",
     "consistency.start",
+    "binocular.start",
+    "binocular.until",
     "near_prune.start",
     "correspondence.start",
     "correspondence.until",

@@ -20,6 +20,7 @@ changes nothing, not even the order of the run's random draws. The loop's order 
     dropout.draw                   photometric_inputs: the kept rows (dropout)
     photometric render, loss
     consistency.extra_loss         added to the photometric loss (consistency_weight > 0)
+    binocular.extra_loss           render from a shifted camera, warped back (binocular.weight > 0)
     guard.check_finite, backward
     scatter_output                 dropout: means2d.grad and radii back on all N rows
     densify.step_post_backward     statistics, (dtu.black_white), densify, opacity reset

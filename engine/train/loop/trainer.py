@@ -22,13 +22,10 @@ state (``parts.py`` says what a part is). In this folder:
 - the optimizer and its LR schedule (``optimizer.py``, ``schedule.py``), the checkpoint state
   (``state.py``), the result (``result.py``).
 
-In ``engine/train/regularizers/``: :class:`DepthRegularizer` (``depth_regularizer.py``):
-passes 1 and 2, only built when the config uses depth; and the optional parts, each built only
-when its switch is on (the DTU preset turns dense init and the background pieces on):
-DropGaussian (``dropout.py``), DTU background handling (``dtu_background.py``), warp
-consistency (``consistency.py``), LLFF near-plane pruning with a radius relative to the scene's
-near bound (``near_prune.py``). The initial Gaussians come from ``engine/train/init/`` (random
-box, dense init, the scene's sparse points); ``parts.py`` lists the hooks.
+In ``engine/train/regularizers/``: :class:`DepthRegularizer` (passes 1 and 2, built when the
+config uses depth) and the optional parts, each built only when its switch is on (dropout, DTU
+background, warp and binocular consistency, correspondence, near-plane pruning; ``parts.py``
+lists their hooks). The initial Gaussians come from ``engine/train/init/``.
 
 Deviations from the reference, on purpose: guarded depth loss (empty selection, zero variance),
 no unused SH tensors, geometry features cached per evaluation, a fixed hash-grid resolution
@@ -92,6 +89,7 @@ from sparsesplat.engine.train.loop.recorder import Recorder, json_safe
 from sparsesplat.engine.train.loop.result import TrainResult, limit_warning
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
 from sparsesplat.engine.train.loop.state import restore_trainer, trainer_state
+from sparsesplat.engine.train.regularizers.binocular import BinocularConsistency
 from sparsesplat.engine.train.regularizers.consistency import WarpConsistency
 from sparsesplat.engine.train.regularizers.correspondence import CorrespondenceTerm
 from sparsesplat.engine.train.regularizers.depth_gate import agreeing_views
@@ -192,6 +190,12 @@ class Trainer:
         if cfg.consistency.enabled:
             self.consistency = WarpConsistency(
                 cfg.consistency, self.cameras, self.images, self._raster, clock
+            )
+        self.binocular: BinocularConsistency | None = None
+        """Binocular self-consistency; None unless ``binocular.weight > 0``."""
+        if cfg.binocular.enabled:
+            self.binocular = BinocularConsistency(
+                cfg.binocular, self.extent, self._raster, self.generator, clock
             )
         self.correspondence: CorrespondenceTerm | None = None
         """The matched-depth term; None unless ``correspondence.weight > 0`` and the run has
@@ -441,6 +445,10 @@ class Trainer:
             extra = self.consistency.extra_loss(it, g, out, view)
             loss = loss if extra is None else loss + extra
             timer.tick("consistency")
+        if self.binocular is not None:
+            extra = self.binocular.extra_loss(it, inputs, out, camera, view.image, self.background)
+            loss = loss if extra is None else loss + extra
+            timer.tick("binocular")
         if self.correspondence is not None:
             extra = self.correspondence.extra_loss(it, out, view)
             loss = loss if extra is None else loss + extra

@@ -117,8 +117,9 @@ def warp_consistency_loss(
             render's depth / alpha, detached; non-finite or <= 0 where it sees nothing, which
             passes the check); None skips the occlusion check.
     Returns:
-        A scalar, differentiable w.r.t. ``depth`` (and ``alpha``); 0 (attached, zero gradient)
-        when no pixel qualifies.
+        A scalar, differentiable w.r.t. ``depth`` (and ``alpha``), and w.r.t. ``source_image``
+        when it requires a gradient (a render, not a photo: then the torch path runs); 0
+        (attached, zero gradient) when no pixel qualifies.
     """
     if not (math.isfinite(min_alpha) and math.isfinite(occlusion_tolerance)):
         raise CameraError("warp: min_alpha and occlusion_tolerance must be finite")
@@ -140,7 +141,12 @@ def warp_consistency_loss(
     sd = None
     if source_depth is not None:
         sd = source_depth.detach().reshape(source.height, source.width).to(d)
-    if photometric_native.warp_l1_suited(d, a, reference_image, source_image, sd):
+    # The native pass differentiates the depth and alpha only: a source image with a gradient
+    # (the binocular term's render from a virtual camera) takes the torch path.
+    needs_source_grad = source_image.requires_grad and torch.is_grad_enabled()
+    if not needs_source_grad and photometric_native.warp_l1_suited(
+        d, a, reference_image, source_image, sd
+    ):
         # One native pass for the value and both gradients (engine/photometric/cpu/warp.cpp).
         rot, trans = relative_pose(reference, source)
         return photometric_native.warp_l1_native(

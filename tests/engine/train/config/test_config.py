@@ -35,6 +35,9 @@ _NEW_FIELDS = {
     "poses.start",
     "poses.max_rotation_deg",
     "poses.max_translation",
+    *(f"binocular.{name}" for name in ("weight", "baseline", "start", "until", "every")),
+    "binocular.min_alpha",
+    "binocular.occlusion",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 
@@ -64,7 +67,11 @@ def test_a_flat_stored_config_reads_back_as_the_nested_one(name: str) -> None:
     config = preset(name, iterations=333, seed=4)
     # An old checkpoint has none of the later fields: they read back as their defaults.
     defaults = TrainConfig()
-    later = {s.split(".")[0] for s in _NEW_FIELDS if s.startswith(("matches.", "correspondence."))}
+    later = {
+        s.split(".")[0]
+        for s in _NEW_FIELDS
+        if s.startswith(("matches.", "correspondence.", "binocular."))
+    }
     old = dataclasses.replace(
         config,
         init=dataclasses.replace(config.init, add_matched=False),
@@ -149,7 +156,12 @@ def test_with_iterations_scales_exactly_the_schedule_fields() -> None:
                 "hard_depth_start", "soft_depth_start", "depth_until", "depth_smooth_start",
                 "sh_degree_interval", "opacity_reset_interval", "consistency_start",
                 "near_prune_start")  # fmt: skip
-    new = {"correspondence.start", "correspondence.until"}  # fields of later versions
+    new = {  # fields of later versions
+        "correspondence.start",
+        "correspondence.until",
+        "binocular.start",
+        "binocular.until",
+    }
     assert set(SCHEDULE_FIELDS) == {FLAT_NAMES[f] for f in old_list} | new
     assert changed <= {*SCHEDULE_FIELDS, "densify.clean_iterations", "iterations"}
     assert after["densify.opacity_reset_interval"] == 750
