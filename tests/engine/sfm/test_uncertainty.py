@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from sparsesplat.engine.sfm.align import _rodrigues
 from sparsesplat.engine.sfm.check import (
     MAX_ROTATION_STD_DEG,
     left_out,
@@ -25,15 +26,6 @@ from sparsesplat.engine.sfm.uncertainty import (
 from tests.engine.sfm.textured import look_at
 
 INTRINSICS = (600.0, 600.0, 320.0, 240.0)
-
-
-def _rodrigues(w: np.ndarray) -> np.ndarray:
-    theta = float(np.linalg.norm(w))
-    k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if theta < 1e-300:
-        return np.eye(3) + k
-    k /= theta
-    return np.eye(3) + math.sin(theta) * k + (1 - math.cos(theta)) * (k @ k)
 
 
 def _problem(

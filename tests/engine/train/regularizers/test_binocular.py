@@ -23,9 +23,10 @@ import torch
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.synthetic import make_scene
-from sparsesplat.engine.train import Trainer, preset
+from sparsesplat.engine.train import Trainer
 from sparsesplat.engine.train.regularizers.binocular import binocular_loss, shifted_camera
 from tests.engine.numerics import UNIT_ROUNDOFF
+from tests.engine.train.loop.test_trainer_parts import small
 from tests.engine.train.plane_scene import Plane, camera
 
 U = UNIT_ROUNDOFF
@@ -33,18 +34,6 @@ U = UNIT_ROUNDOFF
 
 def _chw(image_hwc: torch.Tensor) -> torch.Tensor:
     return image_hwc.permute(2, 0, 1).contiguous().float()
-
-
-def _small(**overrides: Any):  # type: ignore[no-untyped-def]
-    """The LLFF recipe at smoke scale (test_trainer_parts.py's ``small``)."""
-    base: dict[str, Any] = dict(
-        init="random", iterations=30, init_points=200, eval_interval_s=0, eval_lpips=False,
-        export=False, hash_log2_size=14, lr_means_start=0, lr_means_steps=30, soft_depth_start=10,
-        densify_from=5, densify_until=25, densify_interval=5, depth_smooth_start=20,
-        checkpoint_interval_s=0, threads=1,
-    )  # fmt: skip
-    base.update(overrides)
-    return preset("llff", **base)
 
 
 @pytest.mark.parametrize("shift", [0.0, 0.3, -1.7])
@@ -62,7 +51,7 @@ def test_shifted_camera_moves_along_its_own_x_axis(shift: float) -> None:
 
 def _render(seed: int) -> tuple[Trainer, Any, Camera, tuple[torch.Tensor, ...]]:
     scene, depths = make_scene(seed=seed)
-    t = Trainer(scene, _small(seed=seed, **{"binocular.weight": 1.0}), depths)
+    t = Trainer(scene, small(seed=seed, **{"binocular.weight": 1.0}), depths)
     g, cam = t.gaussians, t.cameras[0]
     inputs = (g.means, g.log_scales, g.quats, g.opacity_logits, t.color.colors(g, cam.center))
     return t, t._raster(*inputs, cam, t.background), cam, inputs
@@ -134,8 +123,8 @@ def test_gradients_reach_the_virtual_render_and_the_depth_and_are_finite() -> No
 
 def test_off_is_not_built_and_on_runs_finite(seed: int) -> None:
     scene, depths = make_scene(seed=seed)
-    assert Trainer(scene, _small(seed=seed), depths).binocular is None
-    cfg = _small(seed=seed, **{"binocular.weight": 1.0, "binocular.every": 2})
+    assert Trainer(scene, small(seed=seed), depths).binocular is None
+    cfg = small(seed=seed, **{"binocular.weight": 1.0, "binocular.every": 2})
     t = Trainer(scene, cfg, depths)
     assert t.binocular is not None
     assert t.binocular.max_shift == pytest.approx(0.1 * t.extent)
