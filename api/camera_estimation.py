@@ -47,3 +47,7 @@ class CameraEstimation(BaseModel):
     """Where the focal length started: ``given`` (held fixed), ``exif`` or ``guess``."""
     photos: list[PhotoPlacement] = Field(default_factory=list)
     """Each photo in upload order: placed or left out, its matches and its error."""
+
+    def left_out(self) -> list[str]:
+        """Names of the photos left out (not trained on), in upload order."""
+        return [photo.name for photo in self.photos if not photo.placed]

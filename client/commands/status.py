@@ -30,7 +30,16 @@ def describe(job: Job) -> str:
         r = p.last_record
         if r is not None and r.psnr is not None:
             lines.append(f"  held-out PSNR   {r.psnr:.2f} dB (SSIM {r.ssim or 0:.3f})")
-    lines.append(f"  views           {job.n_train_views} train + {job.n_test_views} held out")
+    left_out = p.cameras.left_out() if p is not None and p.cameras is not None else []
+    if left_out:
+        # The photos uploaded minus those the camera estimation could not place.
+        lines.append(
+            f"  views           {job.n_train_views - len(left_out)} train + {job.n_test_views} "
+            f"held out ({len(left_out)} of {job.n_train_views} photos left out: "
+            f"{', '.join(left_out)})"
+        )
+    else:
+        lines.append(f"  views           {job.n_train_views} train + {job.n_test_views} held out")
     if job.error:
         lines.append(f"  error           {job.error}")
     lines += [f"  warning         {message}" for message in job.warnings]

@@ -176,5 +176,7 @@ def test_job_page_lists_each_photo_placed_or_left_out(
         assert f"{p['error_px']:.2f} px error" in shown[p["name"]]
     stray = photos[3]
     assert shown["stray_0.png"] == f"left out ({stray['matches']:,} matches): {stray['reason']}"
+    # Four photos were uploaded; the views line counts the three trained on.
+    assert shown["Views"] == "3 training (1 of 4 photos left out, see below), 0 held-out"
     assert page.evaluate("document.documentElement.scrollWidth") <= width
     page.screenshot(path=str(artifacts / f"job-photos-{width}.png"), full_page=True)

@@ -8,6 +8,16 @@ import { errorChart } from "./chart.js";
 import { uploads } from "./session.js";
 import { el, fmtNumber, fmtSeconds, fmtTime, progressBar, stateBadge, toast } from "./ui.js";
 
+/** The job's "Views" line: the photos trained on, and those the camera estimation left out. */
+export function viewsLine(job, cameras) {
+  const heldOut = `${job.n_test_views} held-out`;
+  const photos = (cameras && cameras.photos) || [];
+  const leftOut = photos.filter((photo) => !photo.placed).length;
+  if (!leftOut) return `${job.n_train_views} training, ${heldOut}`;
+  const trained = photos.length - leftOut;
+  return `${trained} training (${leftOut} of ${photos.length} photos left out, see below), ${heldOut}`;
+}
+
 /** Runs render requests one or two at a time (the render worker takes one at a time). */
 export function renderQueue(concurrency = 2) {
   const waiting = [];
@@ -118,7 +128,7 @@ export function mount(container, { jobId }) {
       ["Preset", `${p.preset || s.preset || "automatic"}${p.preset_reason ? ` (${p.preset_reason})` : ""}`],
       ["Depth prior", s.depth_prior || "the preset's"],
       ["Length", length],
-      ["Views", `${job.n_train_views} training, ${job.n_test_views} held-out`],
+      ["Views", viewsLine(job, p.cameras)],
       ["Submitted", fmtTime(job.created_at)],
       ["Started", fmtTime(job.started_at)],
       ["Finished", fmtTime(job.finished_at)],

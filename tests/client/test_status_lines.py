@@ -1,0 +1,45 @@
+"""``sparsesplat status``'s lines for a photos-only job whose camera estimation left photos out."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sparsesplat.api.jobs import Job
+from sparsesplat.client.commands.status import describe
+
+
+def _job(photos: list[dict[str, Any]]) -> Job:
+    cameras = {
+        "views": sum(p["placed"] for p in photos), "points": 900,
+        "reprojection_error_px": 0.8, "triangulation_angle_deg": 12.0, "seconds": 3.0,
+        "attempt": "learned", "focal": "guess", "photos": photos,
+    }  # fmt: skip
+    return Job.model_validate(
+        {
+            "id": "job_1",
+            "state": "succeeded",
+            "spec": {},
+            "created_at": "2026-01-01T00:00:00Z",
+            "n_train_views": len(photos),
+            "n_test_views": 0,
+            "progress": {"cameras": cameras},
+        }
+    )
+
+
+def _photo(name: str, placed: bool) -> dict[str, Any]:
+    return {"name": name, "placed": placed, "matches": 500 if placed else 0}
+
+
+def test_views_line_counts_the_photos_trained_on_and_names_those_left_out() -> None:
+    job = _job([_photo("a.png", True), _photo("b.png", True), _photo("c.png", True),
+                _photo("stray.png", False)])  # fmt: skip
+    assert job.progress is not None and job.progress.cameras is not None
+    assert job.progress.cameras.left_out() == ["stray.png"]
+    views = [line for line in describe(job).splitlines() if line.strip().startswith("views")]
+    assert views == ["  views           3 train + 0 held out (1 of 4 photos left out: stray.png)"]
+
+
+def test_views_line_unchanged_when_every_photo_is_placed() -> None:
+    job = _job([_photo(f"{i}.png", True) for i in range(3)])
+    assert "  views           3 train + 0 held out" in describe(job).splitlines()
