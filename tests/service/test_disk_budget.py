@@ -49,9 +49,13 @@ def test_expected_bytes_cover_a_job_at_its_peak(mic_upload: Path) -> None:
                             mic_upload)  # fmt: skip
     # mic's preset starts from 10k Gaussians; 30 iterations hold no densification step.
     assert 2 * checkpoint_bytes("sh", 10_000) <= sh <= 2 * checkpoint_bytes("sh", 10_000) + 3e6
-    neural = expected_job_bytes(JobSpec(iterations=60, depth_prior="none"), mic_upload)
+    neural = expected_job_bytes(
+        JobSpec(iterations=60, depth_prior="none", color_model="neural"), mic_upload
+    )
     assert neural >= 2 * checkpoint_bytes("neural", 10_000) > 290e6
-    longer = expected_job_bytes(JobSpec(iterations=6000, depth_prior="none"), mic_upload)
+    longer = expected_job_bytes(
+        JobSpec(iterations=6000, depth_prior="none", color_model="neural"), mic_upload
+    )
     assert longer > neural, "densification steps raise the expected Gaussians"
 
 

@@ -43,6 +43,13 @@ _BLENDER: dict[str, Any] = {
     # LPIPS; with it, longer runs keep their PSNR while LPIPS falls, which without it they did
     # not (docs/experiments/2026-11-27-blender-opacity-decay.md).
     "densify.opacity_decay": 0.995,
+    # Plain 3DGS SH colours, as the reference runs 6 of the 8 Blender scenes (mic among them;
+    # the neural field only for drums and materials, dngaussian-method.md section 1.9). On
+    # mic over seeds 0-2 (6000 iterations, one thread): 27.61 dB / LPIPS 0.0390 against the
+    # neural field's 27.01 / 0.0444, higher PSNR and lower LPIPS on every seed, in half the
+    # training time (docs/experiments/2026-11-29-colour-model.md, session 32). The `object`
+    # preset inherits it: SH also scored better on both DTU objects.
+    "color.model": "sh",
 }
 
 _LLFF_PARTS: dict[str, Any] = {
@@ -193,8 +200,9 @@ PRESETS: dict[str, dict[str, Any]] = {
         # round 4).
         "dropout.enabled": True,
     },
-    # Blender: 8 views at 400x400, white background, the neural recipe of drums/materials:
-    # hard depth only, every 10th iteration, until the end of densification.
+    # Blender: 8 views at 400x400, white background, the reference's recipe of ship, lego,
+    # ficus and hotdog: SH colours, hard depth only, every 10th iteration, until the end of
+    # densification.
     "blender": _BLENDER,
     # Objects on an empty background (images with alpha): the Blender recipe without the parts
     # that only fit NeRF-synthetic's frame (its fixed [-1, 1]^3 init box, its forced white).

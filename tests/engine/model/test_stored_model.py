@@ -30,8 +30,10 @@ from tests.cli.scenes import write_object_scene
 def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("stored")
     scene = load_scene(write_object_scene(root / "scene", size=32))
+    # The neural field, named: the stored model's budget below is about its hash table.
     config = preset("object", iterations=30, depth_prior="none", init_points=400,
-                    hash_log2_size=14, eval_lpips=False, seed=3)  # fmt: skip
+                    color_model="neural", hash_log2_size=14, eval_lpips=False,
+                    seed=3)  # fmt: skip
     Trainer(scene, config, out_dir=root / "run").run()
     return root / "run"
 
@@ -66,6 +68,7 @@ def test_the_stored_model_is_small_and_cannot_be_resumed(trained: Path, tmp_path
     assert slim.stat().st_size <= budget, (slim.stat().st_size, budget, full)
     assert slim.stat().st_size < full / 2
     scene = load_scene(trained.parent / "scene")
-    config = preset("object", iterations=40, depth_prior="none", hash_log2_size=14)
+    config = preset("object", iterations=40, depth_prior="none", color_model="neural",
+                    hash_log2_size=14)  # fmt: skip
     with pytest.raises(CheckpointError, match="cannot resume"):
         Trainer(scene, config, resume_from=slim)
