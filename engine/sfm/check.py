@@ -28,9 +28,9 @@ MIN_POINTS = 20
 MAX_REPROJECTION_PX = 2.0
 """Largest mean reprojection error accepted (pixels)."""
 MATCHER_REACH = (
-    "each photo needs a neighbour taken within roughly 45 degrees around the object (the "
-    "learned matcher found no match between views 80-98 degrees apart): take the photos closer "
-    "together, with more overlap"
+    "each photo needs a neighbour taken within roughly 45 degrees around the object (beyond "
+    "that the learned matcher finds few matches, and none between views 80-98 degrees apart "
+    "in our tests): take the photos closer together, with more overlap"
 )
 """What a photo without a placed neighbour is told."""
 MAX_ROTATION_STD_DEG = 1.5
