@@ -79,6 +79,7 @@ class NeuralColor(ColorModel):
         log2_table_size: int = 19,
         finest_resolution: int = 2048,
         bound_factor: float = 1.2,
+        view_degree: int = 3,
     ) -> NeuralColor:
         """Grid cube centred on the mean of the initial points, half-width
         ``bound_factor`` * (largest axis extent) / 2 (the reference's rule)."""
@@ -90,7 +91,9 @@ class NeuralColor(ColorModel):
             finest_resolution=finest_resolution,
             generator=generator,
         )
-        return cls(NeuralColorField(center, bound, grid=grid, generator=generator))
+        return cls(
+            NeuralColorField(center, bound, grid=grid, generator=generator, view_degree=view_degree)
+        )
 
     def param_groups(self, lrs: dict[str, float]) -> list[dict[str, Any]]:
         """Hash table, sigma MLP and colour MLP as three named groups."""
@@ -138,6 +141,7 @@ class NeuralColor(ColorModel):
             "finest_resolution": _finest_resolution(g),
             "n_levels": g.n_levels,
             "n_features": g.n_features,
+            "view_degree": self.field.view_degree,
             "weights": {k: v.detach().clone() for k, v in self.field.state_dict().items()},
         }
 
@@ -151,7 +155,10 @@ class NeuralColor(ColorModel):
             finest_resolution=state["finest_resolution"],
         )
         w = state["weights"]
-        field = NeuralColorField(w["center"], float(w["bound"]), grid=grid)
+        # Models saved before view_degree existed saw every band.
+        field = NeuralColorField(
+            w["center"], float(w["bound"]), grid=grid, view_degree=state.get("view_degree", 3)
+        )
         field.load_state_dict(w)
         return cls(field)
 

@@ -28,6 +28,7 @@ def initial_model(
             generator,
             log2_table_size=cfg.color.hash_log2_size,
             finest_resolution=cfg.color.hash_finest_resolution,
+            view_degree=cfg.color.view_degree,
         )
         color.field.to(device)
     else:

@@ -424,3 +424,40 @@ def test_override_values_are_json_or_plain_strings(item: str, want: tuple) -> No
 def test_override_without_field_and_value_names_the_form(item: str) -> None:
     with pytest.raises(ConfigError, match="FIELD=JSON"):
         parse_override(item)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+def test_neural_view_degree_keeps_only_the_low_direction_bands(degree: int) -> None:
+    """A field limited to ``view_degree`` computes what the full field computes from a
+    direction code whose bands above that degree are zero (float64 reference below); degree 0
+    leaves no view dependence at all; the limit survives the state dict, and a state dict
+    written before the limit existed loads with every band."""
+    g = torch.Generator().manual_seed(degree)
+    means = torch.rand(40, 3, generator=g)
+    color = NeuralColor.create(means, g, log2_table_size=12, view_degree=degree)
+    gs = Gaussians.from_points(means)
+    cams = (torch.tensor([0.3, -2.0, 0.5]), torch.tensor([-1.5, 0.7, 2.5]))
+    field = color.field
+    for cam in cams:
+        got = color.colors(gs, cam).detach().double()
+        dirs = torch.nn.functional.normalize(means.double() - cam.double(), dim=-1)
+        code = sh_basis(dirs, 3)
+        code[:, (degree + 1) ** 2 :] = 0.0
+        geo = field.geo_features(means).detach().double()
+        w0 = field.color_mlp[0].weight.detach().double()
+        w2 = field.color_mlp[2].weight.detach().double()
+        h = torch.relu(code @ w0[:, :16].T + geo @ w0[:, 16:].T) @ w2.T
+        want = torch.sigmoid(h) * 1.002 - 0.001
+        # float32 field against float64: a few float32 roundings of O(1) sums of 64 terms.
+        assert torch.allclose(got, want, atol=2e-5, rtol=0), f"degree {degree}"
+    if degree == 0:
+        assert torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    else:
+        assert not torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    state = color.state_dict()
+    assert state["view_degree"] == degree
+    assert make_color_model(state).field.view_degree == degree  # type: ignore[attr-defined]
+    old = {k: v for k, v in state.items() if k != "view_degree"}
+    assert make_color_model(old).field.view_degree == 3  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError, match=r"color\.view_degree"):
+        preset("llff", **{"color.view_degree": 4})
