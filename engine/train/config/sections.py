@@ -119,6 +119,10 @@ class ColorConfig:
     view_degree: int = 3
     """Highest SH band of the view direction the neural field's colour head sees (0..3; the
     reference's 3). Lower bands make colour less view-dependent."""
+    view_degree_interval: int = 0
+    """Iterations between increases of the neural field's view degree, from 0 up to
+    ``view_degree``, as 3DGS grows its SH degree (0: every band from the start, the
+    reference's)."""
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid field."""
