@@ -119,9 +119,9 @@ class ColorConfig:
     view_degree: int = 3
     """Highest SH band of the view direction the neural field's colour head sees (0..3; the
     reference's 3). Lower bands make colour less view-dependent."""
-    view_degree_interval: int = 0
+    view_degree_interval: int | None = None
     """Iterations between increases of the neural field's view degree, from 0 up to
-    ``view_degree``, as 3DGS grows its SH degree (0: every band from the start, the
+    ``view_degree``, as 3DGS grows its SH degree (None: every band from the start, the
     reference's)."""
 
     def validate(self) -> None:
@@ -130,6 +130,10 @@ class ColorConfig:
             raise ConfigError(f"color.sh_degree must be 0..3, got {self.sh_degree}")
         if not 0 <= self.view_degree <= 3:
             raise ConfigError(f"color.view_degree must be 0..3, got {self.view_degree}")
+        if self.view_degree_interval is not None and self.view_degree_interval < 1:
+            raise ConfigError(
+                f"color.view_degree_interval must be None or >= 1, got {self.view_degree_interval}"
+            )
 
 
 @dataclass(frozen=True)

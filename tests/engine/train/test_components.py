@@ -461,3 +461,33 @@ def test_neural_view_degree_keeps_only_the_low_direction_bands(degree: int) -> N
     assert make_color_model(old).field.view_degree == 3  # type: ignore[attr-defined]
     with pytest.raises(ConfigError, match=r"color\.view_degree"):
         preset("llff", **{"color.view_degree": 4})
+
+
+def test_neural_view_degree_schedule_grows_like_the_sh_degree() -> None:
+    """With ``view_degree_interval`` the field starts without view dependence and gains one
+    band every interval up to ``view_degree``, as the SH model's degree does on the same
+    schedule; a model rebuilt from its state dict keeps the band and the schedule."""
+    g = torch.Generator().manual_seed(0)
+    means = torch.rand(20, 3, generator=g)
+    color = NeuralColor.create(means, g, log2_table_size=12, view_degree=2, view_interval=500)
+    sh = SHColor(2, 500)
+    gs = Gaussians.from_points(means)
+    cams = (torch.tensor([0.3, -2.0, 0.5]), torch.tensor([-1.5, 0.7, 2.5]))
+    assert torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    seen = []
+    for it in range(1, 1601):
+        color.step_hook(it, it - 1)
+        sh.step_hook(it, it - 1)
+        assert color.field.view_degree == sh.active_degree, it
+        if it in (499, 500, 999, 1000, 1600):
+            seen.append(color.field.view_degree)
+    assert seen == [0, 1, 1, 2, 2]
+    rebuilt = make_color_model(color.state_dict())
+    assert isinstance(rebuilt, NeuralColor)
+    assert (rebuilt.field.view_degree, rebuilt.view_interval, rebuilt.view_max) == (2, 500, 2)
+    assert torch.equal(rebuilt.colors(gs, cams[0]), color.colors(gs, cams[0]))
+    cfg = preset("llff", iterations=1500, **{"color.view_degree_interval": 1000})
+    assert cfg.color.view_degree_interval == 1000  # an override is the value the run uses
+    assert preset("llff").color.view_degree_interval is None  # every band at once, as the reference
+    with pytest.raises(ConfigError, match=r"color\.view_degree_interval"):
+        preset("llff", **{"color.view_degree_interval": 0})
