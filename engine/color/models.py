@@ -67,9 +67,13 @@ class NeuralColor(ColorModel):
 
     kind = "neural"
 
-    def __init__(self, field: NeuralColorField) -> None:
-        """Wrap an already-built field."""
+    def __init__(self, field: NeuralColorField, view_interval: int = 0, view_max: int = 3) -> None:
+        """Wrap an already-built field. With ``view_interval`` > 0 the field's view degree
+        (the direction bands its colour head sees) grows by one every ``view_interval``
+        iterations up to ``view_max`` (:meth:`step_hook`), as 3DGS grows its SH degree."""
         self.field = field
+        self.view_interval = view_interval
+        self.view_max = view_max
 
     @classmethod
     def create(
@@ -79,6 +83,8 @@ class NeuralColor(ColorModel):
         log2_table_size: int = 19,
         finest_resolution: int = 2048,
         bound_factor: float = 1.2,
+        view_degree: int = 3,
+        view_interval: int = 0,
     ) -> NeuralColor:
         """Grid cube centred on the mean of the initial points, half-width
         ``bound_factor`` * (largest axis extent) / 2 (the reference's rule)."""
@@ -90,7 +96,15 @@ class NeuralColor(ColorModel):
             finest_resolution=finest_resolution,
             generator=generator,
         )
-        return cls(NeuralColorField(center, bound, grid=grid, generator=generator))
+        start = 0 if view_interval > 0 else view_degree
+        field = NeuralColorField(center, bound, grid=grid, generator=generator, view_degree=start)
+        return cls(field, view_interval, view_degree)
+
+    def step_hook(self, position: float, previous: float) -> None:
+        """One more view band every ``view_interval`` iterations of the schedule (if set)."""
+        interval = self.view_interval
+        if interval > 0 and position // interval > previous // interval:
+            self.field.view_degree = min(self.field.view_degree + 1, self.view_max)
 
     def param_groups(self, lrs: dict[str, float]) -> list[dict[str, Any]]:
         """Hash table, sigma MLP and colour MLP as three named groups."""
@@ -138,6 +152,9 @@ class NeuralColor(ColorModel):
             "finest_resolution": _finest_resolution(g),
             "n_levels": g.n_levels,
             "n_features": g.n_features,
+            "view_degree": self.field.view_degree,
+            "view_interval": self.view_interval,
+            "view_max": self.view_max,
             "weights": {k: v.detach().clone() for k, v in self.field.state_dict().items()},
         }
 
@@ -151,9 +168,12 @@ class NeuralColor(ColorModel):
             finest_resolution=state["finest_resolution"],
         )
         w = state["weights"]
-        field = NeuralColorField(w["center"], float(w["bound"]), grid=grid)
+        # Models saved before view_degree existed saw every band.
+        field = NeuralColorField(
+            w["center"], float(w["bound"]), grid=grid, view_degree=state.get("view_degree", 3)
+        )
         field.load_state_dict(w)
-        return cls(field)
+        return cls(field, state.get("view_interval", 0), state.get("view_max", field.view_degree))
 
 
 def _finest_resolution(grid: HashGrid) -> int:

@@ -53,9 +53,15 @@ class NeuralColorField(nn.Module):
         geo_dim: int = 64,
         grid: HashGrid | None = None,
         generator: torch.Generator | None = None,
+        view_degree: int = 3,
     ) -> None:
-        """``center`` (3,) and ``bound`` (half-width) define the cube mapped onto the grid."""
+        """``center`` (3,) and ``bound`` (half-width) define the cube mapped onto the grid;
+        ``view_degree`` (0..3) is the highest SH band of the view direction the colour head
+        sees (3: the reference's; lower bands are zeroed)."""
         super().__init__()
+        if not 0 <= view_degree <= 3:
+            raise ValueError(f"view_degree must be 0..3, got {view_degree}")
+        self.view_degree = view_degree
         self.register_buffer("center", center.detach().float().clone())
         self.register_buffer("bound", torch.tensor(float(bound)))
         self.grid = grid if grid is not None else HashGrid(generator=generator)
@@ -91,8 +97,14 @@ class NeuralColorField(nn.Module):
         if self.grid.uses_native(dirs):
             from sparsesplat.engine.color.native import sh16_native
 
-            return sh16_native(dirs)
-        return sh_basis(dirs, 3)
+            code = sh16_native(dirs)
+        else:
+            code = sh_basis(dirs, 3)
+        if self.view_degree < 3:
+            # Bands above view_degree are zeroed, not dropped: the head keeps its 16 inputs.
+            keep = (self.view_degree + 1) ** 2
+            code = torch.cat([code[:, :keep], code.new_zeros(len(code), 16 - keep)], dim=1)
+        return code
 
     def _hidden(self, code: Tensor) -> Tensor:
         """The sigma MLP's two ReLU layers (the input of its output layer)."""

@@ -116,11 +116,24 @@ class ColorConfig:
     hash_finest_resolution: int = 2048
     """Finest grid resolution over the grid cube. Deviation: the reference uses 512 x bound
     (scene-unit dependent); a fixed value keeps results independent of scene scale."""
+    view_degree: int = 3
+    """Highest SH band of the view direction the neural field's colour head sees (0..3; the
+    reference's 3). Lower bands make colour less view-dependent."""
+    view_degree_interval: int | None = None
+    """Iterations between increases of the neural field's view degree, from 0 up to
+    ``view_degree``, as 3DGS grows its SH degree (None: every band from the start, the
+    reference's)."""
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid field."""
         if not 0 <= self.sh_degree <= 3:
             raise ConfigError(f"color.sh_degree must be 0..3, got {self.sh_degree}")
+        if not 0 <= self.view_degree <= 3:
+            raise ConfigError(f"color.view_degree must be 0..3, got {self.view_degree}")
+        if self.view_degree_interval is not None and self.view_degree_interval < 1:
+            raise ConfigError(
+                f"color.view_degree_interval must be None or >= 1, got {self.view_degree_interval}"
+            )
 
 
 @dataclass(frozen=True)

@@ -198,6 +198,7 @@ SCHEDULE_FIELDS = (
     "depth.until",
     "depth.smooth_start",
     "color.sh_degree_interval",
+    "color.view_degree_interval",
     "densify.opacity_reset_interval",
     "consistency.start",
     "binocular.start",

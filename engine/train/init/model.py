@@ -28,6 +28,8 @@ def initial_model(
             generator,
             log2_table_size=cfg.color.hash_log2_size,
             finest_resolution=cfg.color.hash_finest_resolution,
+            view_degree=cfg.color.view_degree,
+            view_interval=cfg.color.view_degree_interval or 0,
         )
         color.field.to(device)
     else:

@@ -424,3 +424,70 @@ def test_override_values_are_json_or_plain_strings(item: str, want: tuple) -> No
 def test_override_without_field_and_value_names_the_form(item: str) -> None:
     with pytest.raises(ConfigError, match="FIELD=JSON"):
         parse_override(item)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+def test_neural_view_degree_keeps_only_the_low_direction_bands(degree: int) -> None:
+    """A field limited to ``view_degree`` computes what the full field computes from a
+    direction code whose bands above that degree are zero (float64 reference below); degree 0
+    leaves no view dependence at all; the limit survives the state dict, and a state dict
+    written before the limit existed loads with every band."""
+    g = torch.Generator().manual_seed(degree)
+    means = torch.rand(40, 3, generator=g)
+    color = NeuralColor.create(means, g, log2_table_size=12, view_degree=degree)
+    gs = Gaussians.from_points(means)
+    cams = (torch.tensor([0.3, -2.0, 0.5]), torch.tensor([-1.5, 0.7, 2.5]))
+    field = color.field
+    for cam in cams:
+        got = color.colors(gs, cam).detach().double()
+        dirs = torch.nn.functional.normalize(means.double() - cam.double(), dim=-1)
+        code = sh_basis(dirs, 3)
+        code[:, (degree + 1) ** 2 :] = 0.0
+        geo = field.geo_features(means).detach().double()
+        w0 = field.color_mlp[0].weight.detach().double()
+        w2 = field.color_mlp[2].weight.detach().double()
+        h = torch.relu(code @ w0[:, :16].T + geo @ w0[:, 16:].T) @ w2.T
+        want = torch.sigmoid(h) * 1.002 - 0.001
+        # float32 field against float64: a few float32 roundings of O(1) sums of 64 terms.
+        assert torch.allclose(got, want, atol=2e-5, rtol=0), f"degree {degree}"
+    if degree == 0:
+        assert torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    else:
+        assert not torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    state = color.state_dict()
+    assert state["view_degree"] == degree
+    assert make_color_model(state).field.view_degree == degree  # type: ignore[attr-defined]
+    old = {k: v for k, v in state.items() if k != "view_degree"}
+    assert make_color_model(old).field.view_degree == 3  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError, match=r"color\.view_degree"):
+        preset("llff", **{"color.view_degree": 4})
+
+
+def test_neural_view_degree_schedule_grows_like_the_sh_degree() -> None:
+    """With ``view_degree_interval`` the field starts without view dependence and gains one
+    band every interval up to ``view_degree``, as the SH model's degree does on the same
+    schedule; a model rebuilt from its state dict keeps the band and the schedule."""
+    g = torch.Generator().manual_seed(0)
+    means = torch.rand(20, 3, generator=g)
+    color = NeuralColor.create(means, g, log2_table_size=12, view_degree=2, view_interval=500)
+    sh = SHColor(2, 500)
+    gs = Gaussians.from_points(means)
+    cams = (torch.tensor([0.3, -2.0, 0.5]), torch.tensor([-1.5, 0.7, 2.5]))
+    assert torch.equal(color.colors(gs, cams[0]), color.colors(gs, cams[1]))
+    seen = []
+    for it in range(1, 1601):
+        color.step_hook(it, it - 1)
+        sh.step_hook(it, it - 1)
+        assert color.field.view_degree == sh.active_degree, it
+        if it in (499, 500, 999, 1000, 1600):
+            seen.append(color.field.view_degree)
+    assert seen == [0, 1, 1, 2, 2]
+    rebuilt = make_color_model(color.state_dict())
+    assert isinstance(rebuilt, NeuralColor)
+    assert (rebuilt.field.view_degree, rebuilt.view_interval, rebuilt.view_max) == (2, 500, 2)
+    assert torch.equal(rebuilt.colors(gs, cams[0]), color.colors(gs, cams[0]))
+    cfg = preset("llff", iterations=1500, **{"color.view_degree_interval": 1000})
+    assert cfg.color.view_degree_interval == 1000  # an override is the value the run uses
+    assert preset("llff").color.view_degree_interval is None  # every band at once, as the reference
+    with pytest.raises(ConfigError, match=r"color\.view_degree_interval"):
+        preset("llff", **{"color.view_degree_interval": 0})
