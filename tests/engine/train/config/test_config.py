@@ -38,6 +38,8 @@ _NEW_FIELDS = {
     *(f"binocular.{name}" for name in ("weight", "baseline", "start", "until", "every")),
     "binocular.min_alpha",
     "binocular.occlusion",
+    "color.view_degree",
+    "color.view_degree_interval",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 
@@ -147,7 +149,11 @@ def test_a_config_built_in_code_is_checked_by_its_hints_too() -> None:
 
 
 def test_with_iterations_scales_exactly_the_schedule_fields() -> None:
-    base = preset("blender", iterations=6000, **{"densify.opacity_reset_interval": 3000})
+    base = preset(
+        "blender",
+        iterations=6000,
+        **{"densify.opacity_reset_interval": 3000, "color.view_degree_interval": 2000},
+    )
     short = base.with_iterations(1500)
     before, after = flat_dict(base), flat_dict(short)
     changed = {k for k in before if before[k] != after[k]}
@@ -161,10 +167,12 @@ def test_with_iterations_scales_exactly_the_schedule_fields() -> None:
         "correspondence.until",
         "binocular.start",
         "binocular.until",
+        "color.view_degree_interval",
     }
     assert set(SCHEDULE_FIELDS) == {FLAT_NAMES[f] for f in old_list} | new
     assert changed <= {*SCHEDULE_FIELDS, "densify.clean_iterations", "iterations"}
     assert after["densify.opacity_reset_interval"] == 750
+    assert after["color.view_degree_interval"] == 500
     assert after["depth.hard_start"] == 1  # a start of 0 becomes 1 when compressed
 
 
