@@ -22,6 +22,16 @@ from sparsesplat.engine.color.sh import C0, eval_sh
 from sparsesplat.engine.gaussians import Gaussians
 
 
+def grown_degree(degree: int, maximum: int, interval: int, position: float, previous: float) -> int:
+    """3DGS's band schedule, shared by both colour models: ``degree`` plus one when the step
+    from schedule position ``previous`` to ``position`` passes a multiple of ``interval`` (for
+    whole iterations: ``position % interval == 0``), at most ``maximum``; unchanged when
+    ``interval`` is 0."""
+    if interval > 0 and position // interval > previous // interval:
+        return min(degree + 1, maximum)
+    return degree
+
+
 class ColorModel:
     """Interface: per-Gaussian colours for one view, plus what the optimizer needs."""
 
@@ -102,9 +112,9 @@ class NeuralColor(ColorModel):
 
     def step_hook(self, position: float, previous: float) -> None:
         """One more view band every ``view_interval`` iterations of the schedule (if set)."""
-        interval = self.view_interval
-        if interval > 0 and position // interval > previous // interval:
-            self.field.view_degree = min(self.field.view_degree + 1, self.view_max)
+        self.field.view_degree = grown_degree(
+            self.field.view_degree, self.view_max, self.view_interval, position, previous
+        )
 
     def param_groups(self, lrs: dict[str, float]) -> list[dict[str, Any]]:
         """Hash table, sigma MLP and colour MLP as three named groups."""
@@ -204,9 +214,9 @@ class SHColor(ColorModel):
 
     def step_hook(self, position: float, previous: float) -> None:
         """3DGS: one more SH band every ``interval`` iterations of the schedule."""
-        # Passing a multiple of the interval (for whole iterations: position % interval == 0).
-        if self.interval > 0 and position // self.interval > previous // self.interval:
-            self.active_degree = min(self.active_degree + 1, self.degree)
+        self.active_degree = grown_degree(
+            self.active_degree, self.degree, self.interval, position, previous
+        )
 
     def _coeffs(self, gaussians: Gaussians) -> Tensor:
         dc = gaussians.params["sh_dc"]

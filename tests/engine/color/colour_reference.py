@@ -56,7 +56,8 @@ def field_reference(
     """The colour field layer by layer in float64 with ``params`` (float64 copies of
     ``field.named_parameters()``, differentiable) at the float32 centres ``means``: the grid's
     decisions use their float32 grid input (computed as ``NeuralColorField._encode`` does), the
-    values ``means64`` (their float64 copy, e.g. a leaf for the centres' gradient).
+    values ``means64`` (their float64 copy, e.g. a leaf for the centres' gradient). The view
+    direction's bands above ``field.view_degree`` are zero, as in the field.
     Returns (colours (N, 3) float64, ambiguous (N,) bool: a ReLU within float32's error of 0)."""
     m64 = means.double() if means64 is None else means64
     with torch.no_grad():
@@ -73,6 +74,8 @@ def field_reference(
     h, t = layer(_relu_checked(h, t, ambiguous), "sigma_mlp.2.weight")
     geo, _ = layer(_relu_checked(h, t, ambiguous), "sigma_mlp.4.weight")
     dirs = torch.nn.functional.normalize(m64 - camera_center.double(), dim=-1)
-    pre, t = layer(torch.cat([sh_basis(dirs, 3), geo[:, 1:]], dim=-1), "color_mlp.0.weight")
+    sh = sh_basis(dirs, 3)
+    sh[:, (field.view_degree + 1) ** 2 :] = 0.0  # the bands the field does not see
+    pre, t = layer(torch.cat([sh, geo[:, 1:]], dim=-1), "color_mlp.0.weight")
     out, _ = layer(_relu_checked(pre, t, ambiguous), "color_mlp.2.weight")
     return torch.sigmoid(out) * 1.002 - 0.001, ambiguous
