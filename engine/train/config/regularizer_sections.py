@@ -183,6 +183,10 @@ class PseudoConfig:
     disc of this radius x the scene extent (0: on the line between the two). A forward-facing
     capture's held-out views can lie well off the training cameras' line (flower's
     ``image008`` is 2.5 extents to the side of all three)."""
+    mode: Literal["hard", "soft", "full"] = "hard"
+    """What the pass moves: 'hard' the centres (opacities held at ``depth.hard_opacity``,
+    scales and rotations detached: DNGaussian's hard depth), 'soft' the opacities alone (the
+    soft depth), 'full' every Gaussian parameter through the render's own depth (FSGS)."""
     min_alpha: float = 0.0
     """Pixels of the pseudo view the model covers with less opacity than this are left out
     (their rendered and network depths set to the covered pixels' means); 0: every pixel."""
@@ -200,6 +204,8 @@ class PseudoConfig:
             raise ConfigError(f"pseudo.every must be >= 1, got {self.every}")
         if not 0.0 <= self.t_min <= 0.5:
             raise ConfigError(f"pseudo.t_min must be in [0, 0.5], got {self.t_min}")
+        if self.mode not in ("hard", "soft", "full"):
+            raise ConfigError(f"pseudo.mode must be hard, soft or full, got {self.mode!r}")
         if not (math.isfinite(self.shift) and self.shift >= 0.0):
             raise ConfigError(f"pseudo.shift must be >= 0, got {self.shift}")
 

@@ -167,11 +167,16 @@ class PseudoViewDepth:
             holes = empty_px[0, 0] < self.settings.min_alpha
         step.timer.tick("pseudo_prior")
         n = len(g)
-        hard = torch.full((n,), self.hard_logit, device=g.means.device)
         empty = g.means.new_zeros(n, 0)
-        out = self.raster(
-            g.means, g.log_scales.detach(), g.quats.detach(), hard, empty, small, None
-        )
+        mode = self.settings.mode
+        if mode == "hard":
+            hard = torch.full((n,), self.hard_logit, device=g.means.device)
+            args = (g.means, g.log_scales.detach(), g.quats.detach(), hard)
+        elif mode == "soft":
+            args = (g.means.detach(), g.log_scales.detach(), g.quats.detach(), g.opacity_logits)
+        else:
+            args = (g.means, g.log_scales, g.quats, g.opacity_logits)
+        out = self.raster(*args, empty, small, None)
         d = out.depth.reshape(small.height, small.width)
         if self.settings.min_alpha > 0:
             d, prior = fill_background_depth(d, prior, holes)

@@ -42,6 +42,7 @@ _NEW_FIELDS = {
     "color.view_degree_interval",
     *(f"pseudo.{name}" for name in ("weight", "start", "until", "every", "t_min", "shift")),
     "pseudo.min_alpha",
+    "pseudo.mode",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 
