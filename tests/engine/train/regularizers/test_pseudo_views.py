@@ -103,9 +103,14 @@ def test_a_shifted_pseudo_camera_moves_in_its_own_image_plane(seed: int) -> None
     assert 0 < float(offset[:2].norm()) <= 0.5 * t.extent * (1 + 1e-5)
 
 
-def test_the_pass_moves_only_the_centres(seed: int) -> None:
-    """The hard depth form: opacities held constant, scales and rotations detached."""
-    t = _trainer(seed, **{"pseudo.every": 1})
+@pytest.mark.parametrize(
+    ("mode", "moved"),
+    [("hard", {"means"}), ("soft", {"opacity_logits"}), ("full", None)],
+)
+def test_each_mode_moves_what_it_names(seed: int, mode: str, moved: set[str] | None) -> None:
+    """hard: the centres alone (opacities held constant, scales and rotations detached);
+    soft: the opacities alone; full: the centres, scales, rotations and opacities."""
+    t = _trainer(seed, **{"pseudo.every": 1, "pseudo.mode": mode})
     part = t.pseudo
     assert part is not None
     g = t.gaussians
@@ -113,10 +118,9 @@ def test_the_pass_moves_only_the_centres(seed: int) -> None:
     view = t._next_view()
     step = AuxiliaryStep(50, g, t.optimizer, view, t.extent, t.guard, t.timer)
     part.step_pre_photometric(step, t.color)
-    assert not torch.equal(g.means.detach(), before["means"])
-    for name, value in g.params.items():
-        if name != "means":
-            assert torch.equal(value.detach(), before[name]), name
+    changed = {k for k, v in g.params.items() if not torch.equal(v.detach(), before[k])}
+    geometry = {"means", "log_scales", "quats", "opacity_logits"}
+    assert changed == (moved if moved is not None else geometry & set(g.params))
 
 
 def test_a_run_with_the_part_stays_finite(seed: int) -> None:
