@@ -169,6 +169,7 @@ class PseudoViewDepth:
         n = len(g)
         empty = g.means.new_zeros(n, 0)
         mode = self.settings.mode
+        args: tuple[Tensor, Tensor, Tensor, Tensor]
         if mode == "hard":
             hard = torch.full((n,), self.hard_logit, device=g.means.device)
             args = (g.means, g.log_scales.detach(), g.quats.detach(), hard)
