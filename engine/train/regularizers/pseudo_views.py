@@ -177,7 +177,8 @@ class PseudoViewDepth:
             args = (g.means.detach(), g.log_scales.detach(), g.quats.detach(), g.opacity_logits)
         else:
             args = (g.means, g.log_scales, g.quats, g.opacity_logits)
-        out = self.raster(*args, empty, small, None)
+        means, log_scales, quats, opacity = args
+        out = self.raster(means, log_scales, quats, opacity, empty, small, None)
         d = out.depth.reshape(small.height, small.width)
         if self.settings.min_alpha > 0:
             d, prior = fill_background_depth(d, prior, holes)
