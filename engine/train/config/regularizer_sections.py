@@ -24,6 +24,7 @@ __all__ = [
     "MatchesConfig",
     "NearPruneConfig",
     "PartnerDepthName",
+    "PseudoConfig",
 ]
 """The sections and the names of their values, re-exported by the package
 (``config/__init__.py``)."""
@@ -156,6 +157,57 @@ class BinocularConfig:
             raise ConfigError(f"binocular.every must be >= 1, got {self.every}")
         if not 0.0 <= self.min_alpha < 1.0:
             raise ConfigError(f"binocular.min_alpha must be in [0, 1), got {self.min_alpha}")
+
+
+@dataclass(frozen=True)
+class PseudoConfig:
+    """``pseudo``: depth at pseudo views (``regularizers/pseudo_views.py``, after FSGS): the
+    model rendered between two training cameras, the run's monocular depth network run on
+    that render, and DNGaussian's hard depth pass (centres only) against it, with its own
+    optimizer step."""
+
+    weight: float = 0.0
+    """Weight of the pass's loss; 0 = off (the part is not built, the network not loaded)."""
+    start: int = 0
+    """The pass runs for iterations > this ..."""
+    until: int | None = None
+    """... and < this (None: to the end) ..."""
+    every: int = 10
+    """... on every this-many-th iteration (each use costs a render, a run of the depth
+    network and a depth pass with its backward)."""
+    t_min: float = 0.25
+    """The pseudo camera lies between t_min and 1 - t_min of the way between two training
+    cameras ..."""
+    shift: float = 0.0
+    """... moved in its own image plane (its x and y axes) by a point drawn uniformly in a
+    disc of this radius x the scene extent (0: on the line between the two). A forward-facing
+    capture's held-out views can lie well off the training cameras' line (flower's
+    ``image008`` is 2.5 extents to the side of all three)."""
+    mode: Literal["hard", "soft", "full"] = "hard"
+    """What the pass moves: 'hard' the centres (opacities held at ``depth.hard_opacity``,
+    scales and rotations detached: DNGaussian's hard depth), 'soft' the opacities alone (the
+    soft depth), 'full' every Gaussian parameter through the render's own depth (FSGS)."""
+    min_alpha: float = 0.0
+    """Pixels of the pseudo view the model covers with less opacity than this are left out
+    (their rendered and network depths set to the covered pixels' means); 0: every pixel."""
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the pass is on."""
+        return self.weight > 0
+
+    def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the first invalid field."""
+        if not (math.isfinite(self.weight) and self.weight >= 0.0):
+            raise ConfigError(f"pseudo.weight must be >= 0, got {self.weight}")
+        if self.every < 1:
+            raise ConfigError(f"pseudo.every must be >= 1, got {self.every}")
+        if not 0.0 <= self.t_min <= 0.5:
+            raise ConfigError(f"pseudo.t_min must be in [0, 0.5], got {self.t_min}")
+        if self.mode not in ("hard", "soft", "full"):
+            raise ConfigError(f"pseudo.mode must be hard, soft or full, got {self.mode!r}")
+        if not (math.isfinite(self.shift) and self.shift >= 0.0):
+            raise ConfigError(f"pseudo.shift must be >= 0, got {self.shift}")
 
 
 MatcherName = Literal["xfeat-lighterglue", "xfeat-semidense", "xfeat-mnn", "disk-lightglue"]

@@ -22,6 +22,7 @@ from sparsesplat.engine.train.config.regularizer_sections import (
     DtuConfig,
     MatchesConfig,
     NearPruneConfig,
+    PseudoConfig,
 )
 from sparsesplat.engine.train.config.sections import (
     ColorConfig,
@@ -98,6 +99,8 @@ class TrainConfig:
     """The warp-consistency term."""
     binocular: BinocularConfig = field(default_factory=BinocularConfig)
     """Binocular self-consistency with a virtual shifted camera."""
+    pseudo: PseudoConfig = field(default_factory=PseudoConfig)
+    """Depth at pseudo views between the training cameras."""
     near_prune: NearPruneConfig = field(default_factory=NearPruneConfig)
     """Near-plane pruning."""
     matches: MatchesConfig = field(default_factory=MatchesConfig)
@@ -203,6 +206,8 @@ SCHEDULE_FIELDS = (
     "consistency.start",
     "binocular.start",
     "binocular.until",
+    "pseudo.start",
+    "pseudo.until",
     "near_prune.start",
     "correspondence.start",
     "correspondence.until",

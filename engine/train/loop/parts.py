@@ -17,6 +17,7 @@ changes nothing, not even the order of the run's random draws. The loop's order 
     depth.step_pre_photometric     hard and soft depth passes, own optimizer steps
                                    (auxiliary_step='joint': gradients kept for the one step)
     dtu.step_pre_photometric       background-alpha pass, own optimizer step (likewise)
+    pseudo.step_pre_photometric    depth at a pseudo view, own optimizer step (pseudo.weight > 0)
     dropout.draw                   photometric_inputs: the kept rows (dropout)
     photometric render, loss
     consistency.extra_loss         added to the photometric loss (consistency_weight > 0)

@@ -51,7 +51,7 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.models import ColorModel
 from sparsesplat.engine.denormals import flush_denormals
-from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
+from sparsesplat.engine.errors import ConfigError, EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.losses import (
     opacity_regularizer,
     photometric_loss,
@@ -97,6 +97,7 @@ from sparsesplat.engine.train.regularizers.depth_regularizer import DepthRegular
 from sparsesplat.engine.train.regularizers.dropout import PhotometricDropout, scatter_output
 from sparsesplat.engine.train.regularizers.dtu_background import DtuBackground
 from sparsesplat.engine.train.regularizers.near_prune import NearPrune
+from sparsesplat.engine.train.regularizers.pseudo_views import PseudoViewDepth
 
 log = logging.getLogger(__name__)
 
@@ -197,6 +198,11 @@ class Trainer:
             self.binocular = BinocularConsistency(
                 cfg.binocular, self.extent, self._raster, self.generator, clock
             )
+        self.pseudo: PseudoViewDepth | None = None
+        """Depth at pseudo views; None unless ``pseudo.weight > 0`` and the run's prior is a
+        monocular network."""
+        if cfg.pseudo.enabled:
+            self.pseudo = _pseudo_part(self, clock)
         self.correspondence: CorrespondenceTerm | None = None
         """The matched-depth term; None unless ``correspondence.weight > 0`` and the run has
         matched points."""
@@ -414,6 +420,8 @@ class Trainer:
             self.depth.step_pre_photometric(aux)
         if self.dtu is not None:  # DTU background alpha, own optimizer step
             self.dtu.step_pre_photometric(aux)
+        if self.pseudo is not None:  # depth at a pseudo view, own optimizer step
+            self.pseudo.step_pre_photometric(aux, self.color)
 
         # Pass 3: photometric. Only the Gaussians DropGaussian keeps are coloured and rendered.
         drop = self.dropout.draw(it, len(g), self.device) if self.dropout is not None else None
@@ -597,3 +605,36 @@ class Trainer:
             stopped=stopped,
             iteration=self.iteration,
         )
+
+
+def _pseudo_part(trainer: Trainer, clock: ScheduleClock) -> PseudoViewDepth:
+    """The pseudo-view depth part of ``trainer``'s run, with the monocular network of its
+    ``depth.prior`` (``pydnet`` or ``onnx:NAME[=FILE]``); ConfigError for another prior."""
+    from sparsesplat.engine.priors.base import parse_prior_spec
+    from sparsesplat.engine.priors.onnx_depth import describe
+    from sparsesplat.engine.weights import resolve_weight
+
+    cfg = trainer.config
+    spec = parse_prior_spec(cfg.depth.prior)
+    if spec.kind not in ("pydnet", "onnx"):
+        raise ConfigError(
+            f"pseudo.weight > 0 needs a monocular depth prior (pydnet or onnx), got "
+            f"depth.prior={cfg.depth.prior!r}"
+        )
+    name = "pydnet" if spec.kind == "pydnet" else str(spec.model)
+    network = describe(name, spec.options)
+    file = Path(spec.path) if spec.path else resolve_weight(network.filename, None)
+    return PseudoViewDepth(
+        cfg.pseudo,
+        cfg.depth,
+        trainer.cameras,
+        trainer._raster,
+        trainer.generator,
+        clock,
+        network,
+        file,
+        trainer.background,
+        hard_downscale(cfg.depth, trainer.cameras),
+        trainer.extent,
+        cfg.optim.joint,
+    )

@@ -40,6 +40,9 @@ _NEW_FIELDS = {
     "binocular.occlusion",
     "color.view_degree",
     "color.view_degree_interval",
+    *(f"pseudo.{name}" for name in ("weight", "start", "until", "every", "t_min", "shift")),
+    "pseudo.min_alpha",
+    "pseudo.mode",
 }
 """Fields that did not exist in the flat versions (no flat name)."""
 
@@ -72,7 +75,7 @@ def test_a_flat_stored_config_reads_back_as_the_nested_one(name: str) -> None:
     later = {
         s.split(".")[0]
         for s in _NEW_FIELDS
-        if s.startswith(("matches.", "correspondence.", "binocular."))
+        if s.startswith(("matches.", "correspondence.", "binocular.", "pseudo."))
     }
     old = dataclasses.replace(
         config,
@@ -168,6 +171,8 @@ def test_with_iterations_scales_exactly_the_schedule_fields() -> None:
         "binocular.start",
         "binocular.until",
         "color.view_degree_interval",
+        "pseudo.start",
+        "pseudo.until",
     }
     assert set(SCHEDULE_FIELDS) == {FLAT_NAMES[f] for f in old_list} | new
     assert changed <= {*SCHEDULE_FIELDS, "densify.clean_iterations", "iterations"}
