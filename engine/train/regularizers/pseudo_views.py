@@ -119,11 +119,14 @@ class PseudoViewDepth:
         return iteration % s.every == 0
 
     def draw_camera(self) -> Camera:
-        """A pseudo camera between two distinct training cameras (the run's generator)."""
+        """A pseudo camera between two distinct training cameras (the run's generator); with
+        a single training camera, that camera (moved by ``shift`` if set)."""
         n = len(self.cameras)
         i = int(torch.randint(n, (1,), generator=self.generator))
-        j = int(torch.randint(n - 1, (1,), generator=self.generator))
-        j = j + 1 if j >= i else j
+        j = i
+        if n > 1:
+            j = int(torch.randint(n - 1, (1,), generator=self.generator))
+            j = j + 1 if j >= i else j
         u = float(torch.rand((), generator=self.generator, dtype=torch.float64))
         t = self.settings.t_min + (1 - 2 * self.settings.t_min) * u
         camera = between(self.cameras[i], self.cameras[j], t)

@@ -128,3 +128,14 @@ def test_a_run_with_the_part_stays_finite(seed: int) -> None:
     res = t.run()
     assert all(bool(torch.isfinite(v).all()) for v in t.gaussians.params.values())
     assert math.isfinite(res.metrics["psnr"])
+
+
+def test_one_training_camera_gives_that_camera(seed: int) -> None:
+    """A run with a single training view still draws: the pseudo camera is that view's."""
+    t = _trainer(seed)
+    part = t.pseudo
+    assert part is not None
+    part.cameras = part.cameras[:1]
+    drawn = part.draw_camera()
+    bound = 16 * U * float(part.cameras[0].world_to_camera.abs().max())
+    assert float((drawn.world_to_camera - part.cameras[0].world_to_camera).abs().max()) <= bound
