@@ -25,26 +25,17 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel
+from sparsesplat.engine.gaussians import inverse_sigmoid
 from sparsesplat.engine.losses import DepthTarget, global_local_depth_loss
 from sparsesplat.engine.model.raster import Raster
 from sparsesplat.engine.priors.onnx_depth import OnnxModel, predict
+from sparsesplat.engine.raster.projection import quat_to_rotmat
 from sparsesplat.engine.train.config import DepthConfig, PseudoConfig
 from sparsesplat.engine.train.loop.parts import AuxiliaryStep, finish_auxiliary_pass
 from sparsesplat.engine.train.loop.poses import matrix_to_quat
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
+from sparsesplat.engine.train.regularizers.depth_regularizer import downscale_depth
 from sparsesplat.engine.train.regularizers.dtu_background import fill_background_depth
-
-
-def quat_to_matrix(q: Tensor) -> Tensor:
-    """Unit wxyz quaternion to a (3, 3) rotation matrix."""
-    w, x, y, z = (q / q.norm()).unbind(-1)
-    return torch.stack(
-        [
-            torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-            torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-            torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-        ]
-    )
 
 
 def slerp(a: Tensor, b: Tensor, t: float) -> Tensor:
@@ -65,7 +56,7 @@ def between(a: Camera, b: Camera, t: float) -> Camera:
     by slerp), with ``a``'s intrinsics and image size."""
     ra, rb = a.world_to_camera[:3, :3].double(), b.world_to_camera[:3, :3].double()
     q = slerp(matrix_to_quat(ra), matrix_to_quat(rb), t)
-    r = quat_to_matrix(q)
+    r = quat_to_rotmat(q)
     centre = (1 - t) * a.center.double() + t * b.center.double()
     pose = torch.eye(4, dtype=torch.float64)
     pose[:3, :3] = r
@@ -106,8 +97,7 @@ class PseudoViewDepth:
         self.downscale = hard_downscale
         self.joint = joint
         self.extent = extent
-        p = torch.tensor(depth.hard_opacity)
-        self.hard_logit = float(torch.log(p / (1 - p)))
+        self.hard_logit = float(inverse_sigmoid(torch.tensor(depth.hard_opacity)))
         lo, hi = depth.patch_range
         self.patch_range = (-(-lo // hard_downscale), -(-hi // hard_downscale))
 
@@ -159,15 +149,11 @@ class PseudoViewDepth:
             prior = predict(image, self.network, self.network_file)
             # Pixels the model leaves (nearly) empty there show the background, whose depth
             # neither the render nor the network can know: both are filled with their means.
-            empty_px = seen.alpha.reshape(1, 1, camera.height, camera.width).float()
+            coverage = seen.alpha.reshape(camera.height, camera.width).float()
             if self.downscale > 1:
-                prior = torch.nn.functional.interpolate(
-                    prior[None, None], size=(small.height, small.width), mode="area"
-                )[0, 0]
-                empty_px = torch.nn.functional.interpolate(
-                    empty_px, size=(small.height, small.width), mode="area"
-                )
-            holes = empty_px[0, 0] < self.settings.min_alpha
+                size = (small.height, small.width)
+                prior, coverage = downscale_depth(prior, size), downscale_depth(coverage, size)
+            holes = coverage < self.settings.min_alpha
         step.timer.tick("pseudo_prior")
         n = len(g)
         empty = g.means.new_zeros(n, 0)
