@@ -22,7 +22,7 @@ import pytest
 
 from tests.service.live import LiveService
 from tests.service.scenes import MIC, write_mic_upload
-from tests.web.helpers import FORM_ITERATIONS, TERMINAL, TrainedJob
+from tests.web.helpers import FORM_BUDGET_S, TERMINAL, TrainedJob
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "test-artifacts" / "web"
@@ -153,7 +153,7 @@ def mic_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def trained_job(
     browser: Any, service: LiveService, mic_folder: Path, artifacts: Path
 ) -> TrainedJob:
-    """Submit the mic upload through the form (60 iterations, a record every second), watch the
+    """Submit the mic upload through the form (a 6 s time budget, a record every second), watch the
     job page while it trains (dropping the WebSocket once), until the job ends."""
     context, page, console = new_page(browser, service.url)
     page.goto("/")
@@ -164,10 +164,10 @@ def trained_job(
     summary = page.text_content("#upload-summary") or ""
     assert "5 frames (3 training, 2 held-out)" in summary
     assert "null" not in summary, summary
-    page.select_option("#job-length", "iterations")
-    # Long enough for several records at 1 s even on a quiet, fast machine: 30 iterations
-    # with a record every 3 s trained in under 3 s there and left the chart one live point.
-    page.fill("#job-length-value", str(FORM_ITERATIONS))
+    # A time budget, so that the chart gains several live points on any machine (a count of
+    # iterations finished between two records on a fast one).
+    page.select_option("#job-length", "budget")
+    page.fill("#job-length-value", str(FORM_BUDGET_S))
     page.fill("#job-record-interval", "1")
     page.click("#job-submit")
     page.wait_for_url(re.compile(r"#/jobs/job_[0-9a-f]+$"))

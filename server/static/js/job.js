@@ -163,7 +163,7 @@ export function mount(container, { jobId }) {
         el(
           "span#job-iteration",
           {},
-          `${p.iteration}/${p.total ?? "?"} iterations`,
+          `${p.iteration}${p.total != null ? `/${p.total}` : ""} iterations`,
           job && !isTerminal(job.state) && p.phase ? ` · ${p.phase}` : "",
           ` · ${fmtSeconds(p.elapsed_s)} trained`,
           job && !isTerminal(job.state) && p.eta_s != null ? ` · about ${fmtSeconds(p.eta_s)} left` : "",

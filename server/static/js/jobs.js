@@ -91,7 +91,7 @@ function jobList() {
         "span.progress-cell",
         {},
         progressBar(p.iteration, p.total),
-        el("span.muted", {}, `${p.iteration ?? 0}/${p.total ?? "?"}${job.state === "running" && p.phase ? ` · ${p.phase}` : ""}`),
+        el("span.muted", {}, `${p.iteration ?? 0}${p.total != null ? `/${p.total}` : " iterations"}${job.state === "running" && p.phase ? ` · ${p.phase}` : ""}`),
         job.state === "running" && p.eta_s != null ? el("span.muted", {}, ` · ${fmtSeconds(p.eta_s)} left`) : null,
       );
     } else progress = el("span.muted", {}, "–");
