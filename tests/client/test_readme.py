@@ -180,7 +180,10 @@ def test_cli_submit_cancel_delete(server: Server, trained: Trained, tmp_path: Pa
     for name, data in upload.images.items():
         (folder / name).write_bytes(data)
     (folder / "cameras.json").write_text(json.dumps(upload.cameras))
-    submitted = _cli("submit", str(folder), "--iterations", "5", "--json", url=server.url,
+    # A time budget longer than the test, so that the cancel finds the job queued or running:
+    # 5 iterations could end before the cancel command started on a fast machine (a cancel
+    # leaves a finished job as it is).
+    submitted = _cli("submit", str(folder), "--time-budget", "600", "--json", url=server.url,
                      cwd=tmp_path)  # fmt: skip
     assert submitted.returncode == 0, submitted.stderr
     job = json.loads(submitted.stdout)

@@ -34,6 +34,14 @@ FAST_SPEC = {"iterations": 30, "record_interval_s": 2.0, "depth_prior": "none", 
 """A job that trains in seconds (no prior, SH colour); for tests about the service."""
 
 
+def budget_spec(seconds: float) -> dict[str, Any]:
+    """:data:`FAST_SPEC` trained for ``seconds`` training seconds instead of a count of
+    iterations: for tests that act on a job while it trains (kill, stop, cancel, delete). A
+    count that lasts long enough on a slow machine can end on a fast one before the test acts
+    (a quiet CI machine trains a few hundred mic iterations a second); a budget cannot."""
+    return {k: v for k, v in FAST_SPEC.items() if k != "iterations"} | {"time_budget_s": seconds}
+
+
 def free_port() -> int:
     """A TCP port nobody listens on right now."""
     with socket.socket() as s:
@@ -194,11 +202,16 @@ def job_events(url: str, job_id: str) -> list[dict[str, Any]]:
         return [json.loads(m) for m in ws]
 
 
-def assert_resumed_once(url: str, job_id: str, saved: int, tail: Callable[[], str]) -> list[int]:
-    """The job whose worker was killed after its checkpoint at iteration ``saved`` ends
-    succeeded on attempt 2: requeued once ("stopped answering"), resumed, and the second attempt
-    continues from the checkpoint, never from zero. Returns the iterations reported after the
-    resume; ``tail`` gives the service log for a failure message."""
+def assert_resumed_once(
+    url: str, job_id: str, checkpoint: dict[str, Any], tail: Callable[[], str]
+) -> list[int]:
+    """The time-budget job (:func:`budget_spec`) whose worker was killed after writing
+    ``checkpoint`` (its loaded state) ends succeeded on attempt 2: requeued once ("stopped
+    answering"), resumed, and the second attempt continues from the checkpoint, never from
+    zero: its iterations and its budget's clock go on from the saved ones, and it stops when
+    the budget is spent in all (not a whole budget after the resume). Returns the iterations
+    reported after the resume; ``tail`` gives the service log for a failure message."""
+    saved, saved_s = int(checkpoint["iteration"]), float(checkpoint["elapsed_s"])
     done = wait_state(url, job_id, TERMINAL, timeout=300)
     assert done["state"] == "succeeded", tail()
     assert done["attempts"] == 2, "run once more, not twice more"
@@ -213,6 +226,12 @@ def assert_resumed_once(url: str, job_id: str, saved: int, tail: Callable[[], st
     # The heartbeat may publish the resumed trainer's iteration (= saved) before its first
     # step; never anything below it.
     assert after and min(after) >= saved >= 1 and max(after) > saved, (saved, after[:5])
+    clock = [e["data"]["elapsed_s"] for e in events[resumed_at:] if e["type"] == "progress"]
+    assert min(clock) >= saved_s > 0, (saved_s, clock[:5])
+    budget, spent = float(done["spec"]["time_budget_s"]), done["progress"]["elapsed_s"]
+    # Trained until the budget was spent, counting the first attempt's seconds: a second
+    # attempt that started the budget afresh would end past saved_s + budget.
+    assert budget <= spent < saved_s + budget, (saved_s, budget, spent)
     return after
 
 

@@ -20,6 +20,7 @@ from tests.service.live import (
     TERMINAL,
     LiveService,
     assert_resumed_once,
+    budget_spec,
     job_events,
     submit,
     wait_progress,
@@ -27,6 +28,14 @@ from tests.service.live import (
 )
 
 pytestmark = pytest.mark.shared_data
+
+RESUME_BUDGET_S = 10.0
+"""Training seconds of a job whose worker is killed after its first checkpoint (at 1 s): it
+cannot end before the kill, however fast the machine (600 iterations ended in about 4 s on a
+2-core machine, leaving a fast one little time between the checkpoint and the kill)."""
+LONG_BUDGET_S = 600.0
+"""Training seconds of a job that is cancelled while it trains: longer than any wait of the
+test, so that it can only end by the cancel."""
 
 
 def _worker_pid(live: LiveService, job_id: str) -> int:
@@ -46,7 +55,7 @@ def test_killed_worker_job_is_requeued_and_resumes_from_its_checkpoint(
 ) -> None:
     live.start_api()
     live.wait_ready()
-    job = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 600})
+    job = submit(live.url, mic_upload, budget_spec(RESUME_BUDGET_S))
     checkpoint = live.data_dir / "jobs" / job["id"] / "run" / "checkpoint.pt"
     wait_progress(live.url, job["id"], 60)
     deadline = time.monotonic() + 60
@@ -54,10 +63,10 @@ def test_killed_worker_job_is_requeued_and_resumes_from_its_checkpoint(
         assert time.monotonic() < deadline, "no checkpoint was written"
         time.sleep(0.2)
     os.kill(_worker_pid(live, job["id"]), signal.SIGKILL)
-    saved = int(torch.load(checkpoint, weights_only=False)["iteration"])
-    # The second attempt continues from the checkpoint; it never starts again from zero.
-    after = assert_resumed_once(live.url, job["id"], saved, live.tail)
-    assert after[-1] <= 600
+    saved = torch.load(checkpoint, weights_only=False)
+    # The second attempt continues from the checkpoint (its iterations and its budget's
+    # clock); it never starts again from zero.
+    assert_resumed_once(live.url, job["id"], saved, live.tail)
 
 
 def test_api_restart_mid_stream_loses_and_repeats_nothing(live: LiveService, mic_upload) -> None:
@@ -87,7 +96,7 @@ def test_cancel_stops_a_running_job_and_delete_leaves_nothing(
 ) -> None:
     live.start_api()
     live.wait_ready()
-    job = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 5000})
+    job = submit(live.url, mic_upload, budget_spec(LONG_BUDGET_S))
     wait_progress(live.url, job["id"], 5)
     asked = time.monotonic()
     answer = httpx.post(f"{live.url}/v1/jobs/{job['id']}/cancel").json()
@@ -107,7 +116,7 @@ def test_renders_under_load_while_a_job_trains(live: LiveService, mic_upload) ->
     live.wait_ready()
     trained = submit(live.url, mic_upload, FAST_SPEC)
     assert wait_state(live.url, trained["id"], TERMINAL)["state"] == "succeeded"
-    training = submit(live.url, mic_upload, {**FAST_SPEC, "iterations": 5000})
+    training = submit(live.url, mic_upload, budget_spec(LONG_BUDGET_S))
     wait_progress(live.url, training["id"], 1)
 
     cameras = httpx.get(f"{live.url}/v1/models/{trained['id']}").json()["cameras"]
@@ -117,24 +126,37 @@ def test_renders_under_load_while_a_job_trains(live: LiveService, mic_upload) ->
     expected = [httpx.post(url, json=b, timeout=60).content for b in bodies]
 
     latencies: list[float] = []
+    answered: list[int | str] = []  # each probe's status, or the error that ended the probing
     stop = threading.Event()
 
     def probe_health() -> None:
         with httpx.Client(timeout=5) as client:
             while not stop.is_set():
                 t0 = time.perf_counter()
-                assert client.get(f"{live.url}/healthz").status_code == 200
+                try:
+                    answered.append(client.get(f"{live.url}/healthz").status_code)
+                except httpx.HTTPError as exc:  # said by the assertion below, not lost here
+                    answered.append(repr(exc))
+                    return
                 latencies.append(time.perf_counter() - t0)
                 time.sleep(0.02)
 
     async def burst() -> list[tuple[int, int, bytes]]:
+        # Rounds of 50 concurrent renders until /healthz was probed 10 times under them: a
+        # fast machine renders 50 in less time than 10 probes take.
+        results: list[tuple[int, int, bytes]] = []
+        deadline = time.monotonic() + 300
         async with httpx.AsyncClient(timeout=120) as client:
 
             async def one(i: int) -> tuple[int, int, bytes]:
                 r = await client.post(url, json=bodies[i % len(bodies)])
                 return i, r.status_code, r.content
 
-            return await asyncio.gather(*(one(i) for i in range(50)))
+            while not results or (len(latencies) < 10 and prober.is_alive()):
+                assert time.monotonic() < deadline, f"{len(latencies)} probes in 300 s"
+                start = len(results)
+                results += await asyncio.gather(*(one(start + i) for i in range(50)))
+        return results
 
     prober = threading.Thread(target=probe_health)
     prober.start()
@@ -150,4 +172,5 @@ def test_renders_under_load_while_a_job_trains(live: LiveService, mic_upload) ->
     assert not wrong, f"renders {wrong} differ from the same render made alone"
     # /healthz kept answering throughout (its latency is a figure of `make bench-service`:
     # speed targets do not belong in tests that share a loaded machine).
+    assert all(status == 200 for status in answered), answered
     assert len(latencies) >= 10

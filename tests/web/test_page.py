@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.service.live import FAST_SPEC, LiveService, submit, wait_state
+from tests.service.live import LiveService, budget_spec, submit, wait_state
 from tests.web.conftest import REPO, image_bytes, new_page
 from tests.web.helpers import (
     PINHOLE_FIELDS,
@@ -165,7 +165,10 @@ def test_job_page_shows_the_uploaded_photos_and_priors_from_the_api(
 def test_cancel_and_delete_from_the_jobs_list(
     browser: Any, service: LiveService, mic_folder: Path, trained_job: TrainedJob
 ) -> None:
-    job = submit(service.url, mic_folder, {**FAST_SPEC, "iterations": 2000})
+    # A budget longer than the wait for the cancel below, so that only the click ends the job:
+    # 2000 iterations took about 10 s here, and a fast machine could finish them before the
+    # page loaded and the button was clicked (a cancel leaves a finished job as it is).
+    job = submit(service.url, mic_folder, budget_spec(600.0))
     context, page, console = new_page(browser, service.url)
     page.goto("/")
     row = page.locator(f"#jobs-body tr[data-job-id='{job['id']}']")
