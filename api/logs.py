@@ -43,7 +43,10 @@ def current_job_id() -> str | None:
 
 class _JobIdFilter(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
-        record.job_id = _job_id.get()
+        # A job id given with the call (``extra={"job_id": ...}``, as the dispatcher logs
+        # about jobs it is not running) wins over the context's, which is None there.
+        if getattr(record, "job_id", None) is None:
+            record.job_id = _job_id.get()
         return True
 
 

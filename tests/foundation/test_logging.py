@@ -61,3 +61,20 @@ def test_exceptions_stay_on_one_line() -> None:
         logging.getLogger("x").exception("failed")
     assert len(stream.getvalue().strip().splitlines()) == 1
     assert "boom" in stream.getvalue()
+
+
+def test_a_job_id_given_with_the_call_is_kept_in_both_formats() -> None:
+    """The dispatcher logs about queued jobs outside any job context, naming the job with
+    ``extra={"job_id": ...}``: the line carries it (the context's None must not replace it)."""
+    for json_lines in (True, False):
+        stream = io.StringIO()
+        configure_logging("INFO", json_lines=json_lines, stream=stream)
+        log = logging.getLogger("sparsesplat.dispatch")
+        log.warning("sent again", extra={"job_id": "job-7"})
+        with job_context("job-8"):
+            log.info("inside")
+        text = stream.getvalue().splitlines()
+        if json_lines:
+            assert [json.loads(line).get("job_id") for line in text] == ["job-7", "job-8"]
+        else:
+            assert "job_id=job-7" in text[0] and "job_id=job-8" in text[1], text

@@ -228,11 +228,16 @@ def test_viewer_live_view_follows_the_orbit(
 
     before = page.evaluate("() => ({...window.sparsesplat.view.live.stats, ages: []})")
     page.check("#viewer-spin")
-    time.sleep(6)
+    time.sleep(2)
+    # Orbit until three frames were shown (within a minute), not for a fixed time: a loaded
+    # machine skips more of the frames that arrive late, a quiet one shows them in a second.
+    shown = page.wait_for_function(
+        "() => window.sparsesplat.view.live.stats.ages.length >= 3", timeout=60_000
+    )
     page.uncheck("#viewer-spin")
     stats = page.evaluate("() => window.sparsesplat.view.live.stats")
     moving = stats["ages"]
-    assert len(moving) >= 3, f"too few live frames while orbiting: {stats}"
+    assert shown and len(moving) >= 3, f"too few live frames while orbiting: {stats}"
     assert max(moving) <= 300, f"a frame older than 300 ms was shown: {max(moving):.0f} ms"
     assert stats["sent"] - before["sent"] >= stats["received"] - before["received"]
     page.screenshot(path=str(artifacts / "viewer-live.png"))
