@@ -276,7 +276,14 @@ def preset(
     asked = {resolve(key) for key in overrides} & {"iterations", "time_budget_s"}
     if iterations is None and not asked:
         config = apply_overrides(config, {"time_limit_s": DEFAULT_TIME_LIMIT_S})
-    return apply_overrides(config, overrides)
+    config = apply_overrides(config, overrides)
+    # The recipe's depth at pseudo views runs the prior's network on renders of the model:
+    # with a prior that is not one (plane_sweep, user, none) the part is left out, where
+    # asking for it yourself is refused by the trainer.
+    named = {resolve(key) for key in overrides}
+    if config.pseudo.enabled and "pseudo.weight" not in named and not config.depth.monocular:
+        config = apply_overrides(config, {"pseudo.weight": 0.0})
+    return config
 
 
 def layout_recipe(name: str, layout: str | None, overrides: dict[str, Any]) -> dict[str, Any]:

@@ -262,6 +262,13 @@ class DepthConfig:
         return self.prior != "none" and (self.hard or self.soft)
 
     @property
+    def monocular(self) -> bool:
+        """Whether the prior is a monocular network (``pydnet`` or ``onnx:…``), which parts
+        that run it on a render of the model need (``pseudo``)."""
+        kind = self.prior.strip().partition(":")[0].strip().lower()
+        return kind in ("pydnet", "onnx")
+
+    @property
     def patch_range(self) -> tuple[int, int]:
         """Smallest and largest patch side of the local normalization (inclusive)."""
         return (self.patch_min, self.patch_max)

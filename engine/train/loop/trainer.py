@@ -616,7 +616,7 @@ def _pseudo_part(trainer: Trainer, clock: ScheduleClock) -> PseudoViewDepth:
 
     cfg = trainer.config
     spec = parse_prior_spec(cfg.depth.prior)
-    if spec.kind not in ("pydnet", "onnx"):
+    if not cfg.depth.monocular:
         raise ConfigError(
             f"pseudo.weight > 0 needs a monocular depth prior (pydnet or onnx), got "
             f"depth.prior={cfg.depth.prior!r}"

@@ -60,6 +60,10 @@ def test_the_forward_facing_recipe_is_the_dense_start_and_its_optimizer() -> Non
     assert (forward.consistency.weight, forward.consistency.partner_depth) == (1.0, "last")
     assert (forward.densify.max_gaussians, forward.photometric.lambda_dssim) == (70_000, 0.8)
     assert (base.densify.max_gaussians, base.photometric.lambda_dssim) == (300_000, 0.2)
+    # session 35: depth at pseudo views off to the side, in the last third of the run
+    p = forward.pseudo
+    assert (p.weight, p.mode, p.shift, p.min_alpha) == (1.0, "full", 4.0, 0.5)
+    assert p.start == round(forward.iterations * 2 / 3) and not base.pseudo.enabled
     # nothing else differs at the same length: the schedule is compressed the same way
     assert _changed(base, forward) == set(LAYOUT_RECIPES["llff"][FORWARD]) - {"iterations"}
     assert preset("default", layout=FORWARD).optim == forward.optim
@@ -80,6 +84,19 @@ def test_a_layout_without_a_recipe_or_an_unknown_one_changes_nothing(name: str) 
     assert preset(name, layout="sideways") == preset(name)
     if name in ("dtu", "blender", "object"):
         assert preset(name, layout=FORWARD) == preset(name) == preset(name, layout=INWARD)
+
+
+@pytest.mark.parametrize("prior", ["none", "plane_sweep", "user", "plane_sweep:levels=32"])
+def test_the_recipe_leaves_out_pseudo_views_without_a_monocular_prior(prior: str) -> None:
+    """The recipe's pseudo views run the prior's network on renders: with another prior they
+    are left out (not refused), while asking for them yourself keeps them (the trainer then
+    refuses the run, naming pseudo.weight)."""
+    for name in ("llff", "default"):
+        assert not preset(name, layout=FORWARD, **{"depth.prior": prior}).pseudo.enabled
+        asked = preset(name, layout=FORWARD, **{"depth.prior": prior, "pseudo.weight": 2.0})
+        assert asked.pseudo.weight == 2.0
+    for network in ("pydnet", "onnx:dpt_hybrid", " ONNX:midas=/m.onnx"):
+        assert preset("llff", layout=FORWARD, **{"depth.prior": network}).pseudo.enabled
 
 
 def test_naming_the_init_keeps_the_base_recipe_and_overrides_win() -> None:
