@@ -10,6 +10,9 @@ from sparsesplat.engine.errors import PriorError
 
 KINDS = ("pydnet", "onnx", "user", "plane_sweep", "none")
 """Prior kinds :func:`compute_priors` understands."""
+MONOCULAR_KINDS = ("pydnet", "onnx")
+"""The kinds that are a monocular network, which parts that run the prior on a render of the
+model need (``pseudo``)."""
 
 
 @dataclass
@@ -39,6 +42,11 @@ class PriorSpec:
     """For ``onnx``: the model file; None = the description's file in the models directory."""
     options: dict[str, str] = field(default_factory=dict)
     """Extra ``key=value`` options (e.g. ``plane_sweep:depths=64,window=7``)."""
+
+    @property
+    def monocular(self) -> bool:
+        """Whether the prior is a monocular network (:data:`MONOCULAR_KINDS`)."""
+        return self.kind in MONOCULAR_KINDS
 
 
 def parse_prior_spec(spec: str) -> PriorSpec:

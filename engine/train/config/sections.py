@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from sparsesplat.api.names import ColorModelName, InitName
-from sparsesplat.engine.errors import ConfigError
+from sparsesplat.engine.errors import ConfigError, PriorError
+from sparsesplat.engine.priors.base import parse_prior_spec
 
 __all__ = [
     "AuxiliaryStepName",
@@ -265,8 +266,10 @@ class DepthConfig:
     def monocular(self) -> bool:
         """Whether the prior is a monocular network (``pydnet`` or ``onnx:…``), which parts
         that run it on a render of the model need (``pseudo``)."""
-        kind = self.prior.strip().partition(":")[0].strip().lower()
-        return kind in ("pydnet", "onnx")
+        try:
+            return parse_prior_spec(self.prior).monocular
+        except PriorError:
+            return False  # a setting that does not parse: validate() names the problem
 
     @property
     def patch_range(self) -> tuple[int, int]:
@@ -275,6 +278,10 @@ class DepthConfig:
 
     def validate(self) -> None:
         """Raise :class:`ConfigError` naming the first invalid field."""
+        try:
+            parse_prior_spec(self.prior)
+        except PriorError as exc:
+            raise ConfigError(f"depth.prior: {exc}") from exc
         if not 1 <= self.patch_min <= self.patch_max:
             raise ConfigError(
                 f"depth patch range must satisfy 1 <= depth.patch_min <= depth.patch_max, got "

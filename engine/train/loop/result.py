@@ -6,6 +6,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sparsesplat.engine.train.config import TrainConfig
+from sparsesplat.engine.train.loop.schedule import ScheduleClock
+
 
 @dataclass
 class TrainResult:
@@ -50,3 +53,24 @@ def limit_warning(limit: float, iteration: int, total: int, elapsed_s: float) ->
         f"result is not the plain schedule's (other work on the machine slows training "
         f"too; {way_out})"
     )
+
+
+def note_time(
+    metrics: dict[str, Any],
+    config: TrainConfig,
+    clock: ScheduleClock,
+    iteration: int,
+    elapsed_s: float,
+    stopped: bool,
+) -> None:
+    """Add to a run's final ``metrics`` its time budget and time limit (against the seconds
+    used, for the job's report), and the limit's warning when it bound a run that finished."""
+    if config.time_budget_s is not None:
+        metrics["time_budget_s"] = config.time_budget_s
+    limit = config.time_limit_s
+    if limit is not None:
+        metrics["time_limit_s"] = limit
+        metrics["time_limited"] = clock.limited
+        if clock.limited and not stopped:
+            warning = limit_warning(limit, iteration, config.iterations, elapsed_s)
+            metrics.setdefault("warnings", []).append(warning)

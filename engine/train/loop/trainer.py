@@ -37,7 +37,6 @@ No global state: each trainer owns its torch.Generator, optimizer and models.
 from __future__ import annotations
 
 import functools
-import logging
 import time
 from collections.abc import Callable
 from contextlib import nullcontext
@@ -51,7 +50,7 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.build import release_cached_memory
 from sparsesplat.engine.color.models import ColorModel
 from sparsesplat.engine.denormals import flush_denormals
-from sparsesplat.engine.errors import ConfigError, EngineError, SceneError, TrainingDiverged
+from sparsesplat.engine.errors import EngineError, SceneError, TrainingDiverged
 from sparsesplat.engine.losses import (
     opacity_regularizer,
     photometric_loss,
@@ -86,7 +85,7 @@ from sparsesplat.engine.train.loop.progress import (
     wants_stop,
 )
 from sparsesplat.engine.train.loop.recorder import Recorder, json_safe
-from sparsesplat.engine.train.loop.result import TrainResult, limit_warning
+from sparsesplat.engine.train.loop.result import TrainResult, note_time
 from sparsesplat.engine.train.loop.schedule import ScheduleClock
 from sparsesplat.engine.train.loop.state import restore_trainer, trainer_state
 from sparsesplat.engine.train.regularizers.binocular import BinocularConsistency
@@ -97,9 +96,7 @@ from sparsesplat.engine.train.regularizers.depth_regularizer import DepthRegular
 from sparsesplat.engine.train.regularizers.dropout import PhotometricDropout, scatter_output
 from sparsesplat.engine.train.regularizers.dtu_background import DtuBackground
 from sparsesplat.engine.train.regularizers.near_prune import NearPrune
-from sparsesplat.engine.train.regularizers.pseudo_views import PseudoViewDepth
-
-log = logging.getLogger(__name__)
+from sparsesplat.engine.train.regularizers.pseudo_views import PseudoViewDepth, monocular_network
 
 
 class Trainer:
@@ -202,7 +199,12 @@ class Trainer:
         """Depth at pseudo views; None unless ``pseudo.weight > 0`` and the run's prior is a
         monocular network."""
         if cfg.pseudo.enabled:
-            self.pseudo = _pseudo_part(self, clock)
+            network, network_file = monocular_network(cfg.depth)
+            self.pseudo = PseudoViewDepth(
+                cfg.pseudo, cfg.depth, self.cameras, self._raster, self.generator, clock,
+                network, network_file, self.background, hard_downscale(cfg.depth, self.cameras),
+                self.extent, cfg.optim.joint,
+            )  # fmt: skip
         self.correspondence: CorrespondenceTerm | None = None
         """The matched-depth term; None unless ``correspondence.weight > 0`` and the run has
         matched points."""
@@ -262,12 +264,6 @@ class Trainer:
             return None  # (a missing or misaligned prior is reported by the regulariser)
         cache = self.out_dir / "priors" if self.out_dir is not None else None
         views, self.depth_agreement = agreeing_views(self.scene, priors, threshold, cache)
-        if len(views) < len(priors):
-            log.info(
-                "depth prior skipped on %d of %d views (agreement %s < %g)",
-                len(priors) - len(views), len(priors),
-                ", ".join(f"{r:.2f}" for r in self.depth_agreement), threshold,
-            )  # fmt: skip
         return views
 
     def _initial_points(self, depth: list[Any] | None) -> tuple[Tensor, Tensor | None]:
@@ -562,16 +558,7 @@ class Trainer:
         )
         if self.init_note is not None:
             metrics["init"] = self.init_note
-        if self.config.time_budget_s is not None:  # budget against used, for the job's report
-            metrics["time_budget_s"] = self.config.time_budget_s
-        limit = self.config.time_limit_s
-        if limit is not None:
-            metrics["time_limit_s"] = limit
-            metrics["time_limited"] = self.clock.limited
-            if self.clock.limited and not stopped:
-                metrics.setdefault("warnings", []).append(
-                    limit_warning(limit, self.iteration, self.config.iterations, self.elapsed_s)
-                )
+        note_time(metrics, self.config, self.clock, self.iteration, self.elapsed_s, stopped)
         if self.matches is not None:
             metrics["matches"] = self.matches.summary
             if "error" in self.matches.summary:  # the run went on without the matched parts
@@ -605,36 +592,3 @@ class Trainer:
             stopped=stopped,
             iteration=self.iteration,
         )
-
-
-def _pseudo_part(trainer: Trainer, clock: ScheduleClock) -> PseudoViewDepth:
-    """The pseudo-view depth part of ``trainer``'s run, with the monocular network of its
-    ``depth.prior`` (``pydnet`` or ``onnx:NAME[=FILE]``); ConfigError for another prior."""
-    from sparsesplat.engine.priors.base import parse_prior_spec
-    from sparsesplat.engine.priors.onnx_depth import describe
-    from sparsesplat.engine.weights import resolve_weight
-
-    cfg = trainer.config
-    spec = parse_prior_spec(cfg.depth.prior)
-    if not cfg.depth.monocular:
-        raise ConfigError(
-            f"pseudo.weight > 0 needs a monocular depth prior (pydnet or onnx), got "
-            f"depth.prior={cfg.depth.prior!r}"
-        )
-    name = "pydnet" if spec.kind == "pydnet" else str(spec.model)
-    network = describe(name, spec.options)
-    file = Path(spec.path) if spec.path else resolve_weight(network.filename, None)
-    return PseudoViewDepth(
-        cfg.pseudo,
-        cfg.depth,
-        trainer.cameras,
-        trainer._raster,
-        trainer.generator,
-        clock,
-        network,
-        file,
-        trainer.background,
-        hard_downscale(cfg.depth, trainer.cameras),
-        trainer.extent,
-        cfg.optim.joint,
-    )

@@ -12,6 +12,7 @@ monotone map. A view without enough confident sweep pixels to judge keeps its pr
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,8 @@ import torch
 from sparsesplat.engine.priors.base import PriorDepth
 from sparsesplat.engine.priors.compare import prior_agreement
 from sparsesplat.engine.scene import Scene
+
+log = logging.getLogger(__name__)
 
 
 def as_prior(value: Any) -> PriorDepth:
@@ -48,4 +51,9 @@ def agreeing_views(
     reference = compute_priors(scene, "plane_sweep", cache_dir=cache_dir)
     rhos = [prior_agreement(p, r)[0] for p, r in zip(wrapped, reference, strict=True)]
     keep = {i for i, rho in enumerate(rhos) if not rho < threshold}  # NaN: no evidence
+    if len(keep) < len(rhos):
+        log.info(
+            "depth prior skipped on %d of %d views (agreement %s < %g)",
+            len(rhos) - len(keep), len(rhos), ", ".join(f"{r:.2f}" for r in rhos), threshold,
+        )  # fmt: skip
     return keep, rhos

@@ -25,6 +25,7 @@ from torch import Tensor
 
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.color.models import ColorModel
+from sparsesplat.engine.errors import ConfigError
 from sparsesplat.engine.gaussians import inverse_sigmoid
 from sparsesplat.engine.losses import DepthTarget, global_local_depth_loss
 from sparsesplat.engine.model.raster import Raster
@@ -63,6 +64,23 @@ def between(a: Camera, b: Camera, t: float) -> Camera:
     pose[:3, 3] = -r @ centre
     pose = pose.to(a.world_to_camera)
     return Camera(pose, a.fx, a.fy, a.cx, a.cy, a.width, a.height)
+
+
+def monocular_network(depth: DepthConfig) -> tuple[OnnxModel, Path]:
+    """The monocular network of the run's ``depth.prior`` (``pydnet`` or ``onnx:NAME[=FILE]``)
+    and its file; ConfigError for a prior that is not one (plane sweep, user depth, none)."""
+    from sparsesplat.engine.priors.base import parse_prior_spec
+    from sparsesplat.engine.priors.onnx_depth import describe
+    from sparsesplat.engine.weights import resolve_weight
+
+    spec = parse_prior_spec(depth.prior)
+    if not spec.monocular:
+        raise ConfigError(
+            f"pseudo.weight > 0 needs a monocular depth prior (pydnet or onnx), got "
+            f"depth.prior={depth.prior!r}"
+        )
+    network = describe("pydnet" if spec.kind == "pydnet" else str(spec.model), spec.options)
+    return network, Path(spec.path) if spec.path else resolve_weight(network.filename, None)
 
 
 class PseudoViewDepth:

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.errors import ConfigError
 from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train.config import TrainConfig
@@ -97,6 +98,24 @@ def test_the_recipe_leaves_out_pseudo_views_without_a_monocular_prior(prior: str
         assert asked.pseudo.weight == 2.0
     for network in ("pydnet", "onnx:dpt_hybrid", " ONNX:midas=/m.onnx"):
         assert preset("llff", layout=FORWARD, **{"depth.prior": network}).pseudo.enabled
+
+
+@pytest.mark.parametrize(
+    ("prior", "problem"),
+    [("pydnett", "unknown kind"), ("onnx", "needs a model"), ("plane_sweep:levels", "key=value")],
+)
+def test_a_prior_setting_that_does_not_parse_is_a_config_error_naming_depth_prior(
+    prior: str, problem: str
+) -> None:
+    """The prior setting has one reader (``parse_prior_spec``): the preset is refused with a
+    ConfigError that names the field and the reader's reason (not the reader's own error from
+    inside the recipe's pseudo-view rule)."""
+    with pytest.raises(ConfigError, match=f"depth.prior: prior '{prior}'.*{problem}"):
+        preset("llff", layout=FORWARD, **{"depth.prior": prior})
+    base = TrainConfig()
+    bad = dataclasses.replace(base, depth=dataclasses.replace(base.depth, prior=prior))
+    with pytest.raises(ConfigError, match=r"depth\.prior"):
+        bad.validate()
 
 
 def test_naming_the_init_keeps_the_base_recipe_and_overrides_win() -> None:
