@@ -138,12 +138,11 @@ class TrainConfig:
             section = getattr(self, item.name)
             if dataclasses.is_dataclass(section) and hasattr(section, "validate"):
                 section.validate()
-        if self.background not in (None, "mean") and (
-            len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background)
-        ):
+        bg = self.background
+        rgb = isinstance(bg, tuple) and len(bg) == 3 and all(0.0 <= c <= 1.0 for c in bg)
+        if bg is not None and bg != "mean" and not rgb:
             raise ConfigError(
-                f"background must be 3 values in [0, 1] (or white, black, gray, mean), got "
-                f"{self.background!r}"
+                f"background must be 3 values in [0, 1] (or white, black, gray, mean), got {bg!r}"
             )
         return self
 

@@ -24,7 +24,7 @@ BACKGROUND_NAMES: dict[str, tuple[float, float, float]] = {
     "grey": (0.5, 0.5, 0.5),
 }
 """Names accepted for ``background``."""
-MEAN_BACKGROUND = "mean"
+MEAN_BACKGROUND: Literal["mean"] = "mean"
 """The ``background`` setting for the training photos' mean colour (resolved per run)."""
 
 

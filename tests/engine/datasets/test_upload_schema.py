@@ -229,6 +229,8 @@ def test_the_mean_background_is_the_training_photos_mean_colour(tmp_path: Path) 
     assert torch.equal(TrainedModel(state).background, trainer.background)
     with pytest.raises(ConfigError, match="white, black, gray, mean or 3 numbers"):
         preset("default", background="median")
+    with pytest.raises(ConfigError, match="background must be 3 values"):  # built in code
+        dataclasses.replace(config, background="median").validate()  # type: ignore[arg-type]
 
 
 def test_instant_ngp_frames_with_alpha_go_on_white(tmp_path: Path) -> None:
