@@ -73,8 +73,8 @@ class TrainConfig:
     background: tuple[float, float, float] | Literal["mean"] | None = None
     """Background RGB in [0, 1] for targets and renders alike: images with alpha are
     composited on it and the renderer blends onto it. ``"mean"``: the training photos' mean
-    colour, what a part of a new view that no photo shows most likely looks like (the
-    forward-facing recipe's; black leaves such parts black). None uses the scene's (white for
+    colour, so that the model cannot darken a pixel by leaving it transparent (no preset sets
+    it: docs/experiments/2026-11-30-mean-background.md). None uses the scene's (white for
     images with alpha, the object-capture convention; black for LLFF/DTU/instant-ngp photos).
     On the command line ``--set background=white`` (or black, gray, mean, or [r, g, b]) works
     too."""
