@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from sparsesplat.engine.errors import ConfigError
 from sparsesplat.engine.model.raster import RasterConfig
@@ -70,11 +70,14 @@ class TrainConfig:
     None: no limit."""
     threads: int | None = None
     """torch CPU threads to use; None leaves the process setting alone."""
-    background: tuple[float, float, float] | None = None
+    background: tuple[float, float, float] | Literal["mean"] | None = None
     """Background RGB in [0, 1] for targets and renders alike: images with alpha are
-    composited on it and the renderer blends onto it. None uses the scene's (white for images
-    with alpha, the object-capture convention; black for LLFF/DTU/instant-ngp photos). On the
-    command line ``--set background=white`` (or black, gray, or [r, g, b]) works too."""
+    composited on it and the renderer blends onto it. ``"mean"``: the training photos' mean
+    colour, so that the model cannot darken a pixel by leaving it transparent (no preset sets
+    it: docs/experiments/2026-11-30-mean-background.md). None uses the scene's (white for
+    images with alpha, the object-capture convention; black for LLFF/DTU/instant-ngp photos).
+    On the command line ``--set background=white`` (or black, gray, mean, or [r, g, b]) works
+    too."""
     init: InitConfig = field(default_factory=InitConfig)
     """The initial Gaussians."""
     color: ColorConfig = field(default_factory=ColorConfig)
@@ -135,12 +138,11 @@ class TrainConfig:
             section = getattr(self, item.name)
             if dataclasses.is_dataclass(section) and hasattr(section, "validate"):
                 section.validate()
-        if self.background is not None and (
-            len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background)
-        ):
+        bg = self.background
+        rgb = isinstance(bg, tuple) and len(bg) == 3 and all(0.0 <= c <= 1.0 for c in bg)
+        if bg is not None and bg != "mean" and not rgb:
             raise ConfigError(
-                f"background must be 3 values in [0, 1] (or white, black, gray), got "
-                f"{self.background!r}"
+                f"background must be 3 values in [0, 1] (or white, black, gray, mean), got {bg!r}"
             )
         return self
 

@@ -24,6 +24,8 @@ BACKGROUND_NAMES: dict[str, tuple[float, float, float]] = {
     "grey": (0.5, 0.5, 0.5),
 }
 """Names accepted for ``background``."""
+MEAN_BACKGROUND: Literal["mean"] = "mean"
+"""The ``background`` setting for the training photos' mean colour (resolved per run)."""
 
 
 class Mismatch(Exception):
@@ -59,13 +61,16 @@ def settable_fields(cls: type) -> dict[str, Any]:
     return out
 
 
-def parse_background(value: Any) -> tuple[float, float, float] | None:
-    """``None``, a name from :data:`BACKGROUND_NAMES` or 3 numbers in [0, 1] -> RGB tuple;
-    anything else raises :class:`ConfigError` saying what is accepted."""
+def parse_background(value: Any) -> tuple[float, float, float] | Literal["mean"] | None:
+    """``None``, :data:`MEAN_BACKGROUND`, a name from :data:`BACKGROUND_NAMES` or 3 numbers in
+    [0, 1] -> that setting as an RGB tuple (or ``"mean"``); anything else raises
+    :class:`ConfigError` saying what is accepted."""
     if value is None:
         return None
     if isinstance(value, str):
         key = value.strip().lower()
+        if key == MEAN_BACKGROUND:
+            return MEAN_BACKGROUND
         if key in BACKGROUND_NAMES:
             return BACKGROUND_NAMES[key]
     else:
@@ -76,7 +81,7 @@ def parse_background(value: Any) -> tuple[float, float, float] | None:
         if len(rgb) == 3 and all(math.isfinite(c) and 0.0 <= c <= 1.0 for c in rgb):
             return (rgb[0], rgb[1], rgb[2])
     raise ConfigError(
-        f"background must be white, black, gray or 3 numbers in [0, 1] like [1, 1, 1], "
+        f"background must be white, black, gray, mean or 3 numbers in [0, 1] like [1, 1, 1], "
         f"got {value!r}"
     )
 

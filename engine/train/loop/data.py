@@ -46,11 +46,20 @@ class RunData:
     """The run's rasterizer (the parts, the evaluation and the trainer's render share it)."""
 
 
+def run_background(scene: Scene, cfg: TrainConfig) -> Tensor:
+    """The run's (3,) float32 background: ``cfg.background``, the scene's when None, or for
+    ``"mean"`` the mean colour of the training photos (each photo weighed equally)."""
+    if cfg.background == "mean":
+        means = [v.image.reshape(-1, 3).double().mean(dim=0) for v in scene.train]
+        return torch.stack(means).mean(dim=0).float()
+    bg = cfg.background if cfg.background is not None else scene.background
+    return torch.as_tensor(bg, dtype=torch.float32)
+
+
 def run_data(scene: Scene, cfg: TrainConfig, device: torch.device) -> RunData:
     """Prepare ``scene``'s training views for a run of ``cfg`` on ``device``."""
-    bg = cfg.background if cfg.background is not None else scene.background
     # One background for targets and renders: images with alpha are re-composited on it.
-    scene = with_background(scene, torch.as_tensor(bg, dtype=torch.float32))
+    scene = with_background(scene, run_background(scene, cfg))
     background = scene.background.float().reshape(3).to(device)
     cameras = [v.camera.to(device, torch.float32) for v in scene.train]
     images = [v.image.permute(2, 0, 1).contiguous().float().to(device) for v in scene.train]

@@ -17,7 +17,7 @@ from PIL import Image
 from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.common import with_background
-from sparsesplat.engine.errors import SceneError
+from sparsesplat.engine.errors import ConfigError, SceneError
 from sparsesplat.engine.synthetic import look_at, make_scene
 from sparsesplat.engine.train.config.presets import choose_preset
 from tests.cli.scenes import shrink_images, write_object_scene
@@ -203,6 +203,34 @@ def test_trainer_targets_and_renders_share_the_configured_background(tmp_path: P
     assert "r_4" in warning and trainer.emptiness_warning(None) is not None
     trainer.view_coverage = {"r_4": 0.3}
     assert trainer.emptiness_warning(psnr_db=40.0) is None
+
+
+def test_the_mean_background_is_the_training_photos_mean_colour(tmp_path: Path) -> None:
+    """``background="mean"``: one colour, the mean of the training photos (each weighed
+    equally, in float64), for targets, renders and the checkpoint; the held-out photos do not
+    enter it; every other spelling is refused naming what is accepted."""
+    from sparsesplat.engine.model.trained import TrainedModel
+    from sparsesplat.engine.train import Trainer, preset
+
+    scene = load_scene(write_folder_scene(tmp_path / "arc"))
+    assert scene.test, "the check needs held-out photos that must not count"
+    photos = [v.image.double().reshape(-1, 3).mean(dim=0) for v in scene.train]
+    expected = torch.stack(photos).mean(dim=0)
+    held_out = torch.stack([v.image.double().reshape(-1, 3).mean(dim=0) for v in scene.test])
+    assert float((held_out.mean(dim=0) - expected).abs().max()) > 1e-3  # they would differ
+    small = {"depth_prior": "none", "init_points": 50, "hash_log2_size": 12, "eval_lpips": False}
+    config = preset("default", background=" Mean ", **small)
+    assert config.background == "mean"
+    trainer = Trainer(scene, config)
+    # float32 rounding of a mean of values in [0, 1]: well inside 1e-6
+    assert float((trainer.background.double() - expected).abs().max()) < 1e-6
+    assert float((trainer.background - torch.zeros(3)).abs().max()) > 0.05  # not black
+    state = trainer.state_dict()
+    assert torch.equal(TrainedModel(state).background, trainer.background)
+    with pytest.raises(ConfigError, match="white, black, gray, mean or 3 numbers"):
+        preset("default", background="median")
+    with pytest.raises(ConfigError, match="background must be 3 values"):  # built in code
+        dataclasses.replace(config, background="median").validate()  # type: ignore[arg-type]
 
 
 def test_instant_ngp_frames_with_alpha_go_on_white(tmp_path: Path) -> None:

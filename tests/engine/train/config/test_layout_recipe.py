@@ -22,14 +22,18 @@ INWARD = "inward-looking"
 
 
 def _changed(a: TrainConfig, b: TrainConfig) -> set[str]:
-    """Dotted names of the section fields where ``a`` and ``b`` differ."""
-    return {
-        f"{section.name}.{f.name}"
-        for section in dataclasses.fields(a)
-        if dataclasses.is_dataclass(getattr(a, section.name))
-        for f in dataclasses.fields(getattr(a, section.name))
-        if getattr(getattr(a, section.name), f.name) != getattr(getattr(b, section.name), f.name)
-    }
+    """Names of the fields where ``a`` and ``b`` differ (dotted for section fields)."""
+    out = set()
+    for item in dataclasses.fields(a):
+        x, y = getattr(a, item.name), getattr(b, item.name)
+        if dataclasses.is_dataclass(x):
+            fields = dataclasses.fields(x)
+            out |= {
+                f"{item.name}.{f.name}" for f in fields if getattr(x, f.name) != getattr(y, f.name)
+            }
+        elif x != y:
+            out.add(item.name)
+    return out
 
 
 def _orbit_scene() -> Scene:
@@ -65,8 +69,10 @@ def test_the_forward_facing_recipe_is_the_dense_start_and_its_optimizer() -> Non
     p = forward.pseudo
     assert (p.weight, p.mode, p.shift, p.min_alpha) == (1.0, "full", 4.0, 0.5)
     assert p.start == round(forward.iterations * 2 / 3) and not base.pseudo.enabled
-    # nothing else differs at the same length: the schedule is compressed the same way
-    assert _changed(base, forward) == set(LAYOUT_RECIPES["llff"][FORWARD]) - {"iterations"}
+    # nothing else differs at the same length (the schedule is compressed the same way; the
+    # default length carries the time limit, a length asked for none)
+    recipe = set(LAYOUT_RECIPES["llff"][FORWARD]) - {"iterations"}
+    assert _changed(base, forward) == recipe | {"time_limit_s"}
     assert preset("default", layout=FORWARD).optim == forward.optim
 
 
