@@ -136,7 +136,7 @@ BAD: list[tuple[str, Any, Any, list[str], list[str]]] = [
     ("1x1 held-out images", None, _tiny("test"), [], ["1x1 pixels; at least 16x16"]),
     ("all images 1x1", None, _tiny("all"), [], ["1x1 pixels; at least 16x16"]),
     ("background name typo", None, None, ["--set", "background=whte"],
-     ["background must be white, black, gray or 3 numbers"]),
+     ["background must be white, black, gray, mean or 3 numbers"]),
     ("field typo", None, None, ["--set", "lamda_dssim=0.2"],
      ["did you mean photometric.lambda_dssim?"]),
     ("dotted field typo", None, None, ["--set", "depth.soft_strat=5"],
