@@ -8,15 +8,20 @@ reprojection error, points, seconds, and the message when the estimation refused
 
     python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...]
 
-``--train SCENE [--iterations N] [--given]`` instead trains the scene twice with its preset
-and seed 0: from the dataset's training cameras, and from the estimated ones (with the
-dataset's intrinsics when ``--given``) brought into the dataset's frame by a similarity
-alignment, and compares the held-out PSNR/SSIM/LPIPS on the dataset's held-out views and
-protocol (DTU's object masks included). The alignment (``--align``) is fitted on the scene by
-default: the dataset's training cameras see the estimate's triangulated matches where the
-estimated cameras see them, so that the held-out cameras see the scene where the dataset
-has it; ``--align cameras`` fits the training cameras' rotations and centres instead (the
-rotation errors of both are reported).
+``--train SCENE [--iterations N] [--given] [--seeds N ...]`` instead trains the scene with its
+preset, once per seed (``--seeds``, default 0) for each run: from the dataset's training
+cameras, and from the estimated ones (with the dataset's intrinsics when ``--given``) brought
+into the dataset's frame by a similarity alignment, and compares the held-out PSNR/SSIM/LPIPS
+on the dataset's held-out views and protocol (DTU's object masks included). The cameras are
+estimated once; the seed only changes the training. With more than one seed it also reports
+each run's mean metrics over the seeds and, per seed and on average, each run's PSNR minus
+the dataset run's. The alignment (``--align``) is fitted on the scene by default: the
+dataset's training cameras see the estimate's triangulated matches where the estimated
+cameras see them, so that the held-out cameras see the scene where the dataset has it;
+``--align cameras`` fits the training cameras' rotations and centres instead (the rotation
+errors of both are reported). The results go to
+``bench-results/cameras-train-SCENE-MODE.json`` (``-seeds-1-2`` appended unless the seeds are
+just 0, so that runs of other seeds do not overwrite it).
 """
 
 from __future__ import annotations
@@ -220,10 +225,12 @@ def train_comparison(
     given: bool,
     runs: tuple[str, ...] = RUNS,
     by: str = "scene",
+    seeds: Sequence[int] = (0,),
 ) -> list[dict[str, Any]]:
-    """Held-out metrics of the same run (the scene's preset, seed 0) from the dataset's and
-    from the estimated training cameras (:func:`with_estimated_cameras`), the latter also with
-    the cameras refined during training, scored on the dataset's held-out views and protocol
+    """Held-out metrics of the same run (the scene's preset, once per seed of ``seeds``; each
+    row names its ``seed``) from the dataset's and from the estimated training cameras
+    (:func:`with_estimated_cameras`, estimated once for all seeds), the latter also with the
+    cameras refined during training, scored on the dataset's held-out views and protocol
     (DTU's object masks included). A refined run is scored twice: at the held-out cameras as
     the dataset gives them (its first camera fixed the frame), and at those cameras mapped by
     the similarity that aligns its refined training cameras to the dataset's (``realigned``).
@@ -241,28 +248,96 @@ def train_comparison(
             dataset, _estimate(dataset, given, threads, Path(tmp)), by
         )
         print(json.dumps({"estimate": figures}), flush=True)
-        for run in runs:
-            scene = dataset if run == "dataset" else estimated
-            overrides: dict[str, Any] = {"seed": 0, "threads": threads}
-            if run == "refined":
-                overrides["poses.enabled"] = True
-            # The one run recipe (the CLI's and the service's), its preset from the format.
-            spec = RunSpec(None, overrides, iterations)
-            trainer = build_run(spec, scene, out_dir=Path(tmp) / run).trainer
-            result = trainer.run()
-            metrics = result.metrics
-            row = {"cameras": run, "intrinsics": "given" if given else "estimated",
-                   "preset": metrics.get("preset"), "iterations": metrics.get("iterations"),
-                   "test_views": len(scene.test), "seconds": result.seconds,
-                   **{k: metrics.get(k) for k in ("psnr", "ssim", "lpips")},
-                   **(figures if run != "dataset" else {})}  # fmt: skip
-            if run == "refined":
-                row["pose_refinement"] = metrics.get("pose_refinement")
-                row["refined_deg"] = refined_errors(trainer, dataset, by)
-                row["realigned"] = realigned_metrics(trainer, dataset, by)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+        for seed in seeds:
+            for run in runs:
+                scene = dataset if run == "dataset" else estimated
+                overrides: dict[str, Any] = {"seed": seed, "threads": threads}
+                if run == "refined":
+                    overrides["poses.enabled"] = True
+                # The one run recipe (the CLI's and the service's), its preset from the format.
+                spec = RunSpec(None, overrides, iterations)
+                out_dir = Path(tmp) / f"{run}-seed{seed}"
+                trainer = build_run(spec, scene, out_dir=out_dir).trainer
+                result = trainer.run()
+                metrics = result.metrics
+                row = {"cameras": run, "seed": seed,
+                       "intrinsics": "given" if given else "estimated",
+                       "preset": metrics.get("preset"), "iterations": metrics.get("iterations"),
+                       "test_views": len(scene.test), "seconds": result.seconds,
+                       **{k: metrics.get(k) for k in METRICS},
+                       **(figures if run != "dataset" else {})}  # fmt: skip
+                if run == "refined":
+                    row["pose_refinement"] = metrics.get("pose_refinement")
+                    row["refined_deg"] = refined_errors(trainer, dataset, by)
+                    row["realigned"] = realigned_metrics(trainer, dataset, by)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     return rows
+
+
+METRICS = ("psnr", "ssim", "lpips")
+"""The held-out metrics of a training comparison's rows."""
+
+
+def _mean(values: Sequence[float | None]) -> float | None:
+    """The mean of ``values``, or None when there are none or one is missing."""
+    if not values or any(v is None for v in values):
+        return None
+    return float(np.mean([float(v) for v in values if v is not None]))
+
+
+def seed_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Over the seeds of :func:`train_comparison`'s ``rows``: per run kind (``means``), the
+    seeds and the mean of each held-out metric; and per run kind other than ``dataset``
+    (``psnr_gap``, when there are dataset rows), its PSNR minus the dataset run's of the same
+    seed, per seed (``per_seed``, seed -> dB, only the seeds both ran) and their ``mean``."""
+    by_run: dict[str, dict[int, dict[str, Any]]] = {}
+    for row in rows:
+        by_run.setdefault(row["cameras"], {})[row["seed"]] = row
+    means = {
+        run: {"seeds": sorted(of_seed),
+              **{k: _mean([r.get(k) for r in of_seed.values()]) for k in METRICS}}
+        for run, of_seed in by_run.items()
+    }  # fmt: skip
+    gaps: dict[str, Any] = {}
+    reference = by_run.get("dataset", {})
+    for run, of_seed in by_run.items():
+        if run == "dataset" or not reference:
+            continue
+        per_seed = {
+            seed: float(row["psnr"]) - float(reference[seed]["psnr"])
+            for seed, row in sorted(of_seed.items())
+            if seed in reference and row.get("psnr") is not None
+            and reference[seed].get("psnr") is not None
+        }  # fmt: skip
+        gaps[run] = {"per_seed": per_seed, "mean": _mean(list(per_seed.values()))}
+    return {"means": means, "psnr_gap": gaps}
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """:func:`seed_summary`'s figures as lines of text: each run's mean metrics over its
+    seeds, then each PSNR gap per seed and on average (dB, two decimals)."""
+
+    def num(v: float | None, digits: int) -> str:
+        return "-" if v is None else f"{v:.{digits}f}"
+
+    lines = []
+    for run, m in summary["means"].items():
+        seeds = " ".join(str(s) for s in m["seeds"])
+        lines.append(f"{run}: mean over seeds {seeds}: PSNR {num(m['psnr'], 2)} / "
+                     f"SSIM {num(m['ssim'], 3)} / LPIPS {num(m['lpips'], 4)}")  # fmt: skip
+    for run, gap in summary["psnr_gap"].items():
+        per_seed = ", ".join(f"seed {s} {v:+.2f}" for s, v in gap["per_seed"].items())
+        lines.append(f"{run} - dataset PSNR: {per_seed}; mean {num(gap['mean'], 2)} dB")
+    return "\n".join(lines)
+
+
+def results_name(scene: str, given: bool, seeds: Sequence[int]) -> str:
+    """The result file's name: ``cameras-train-SCENE-MODE.json``, with the seeds appended
+    (``-seeds-1-2``) unless they are just 0 (the name before seeds could be chosen)."""
+    mode = "given" if given else "estimated"
+    suffix = "" if list(seeds) == [0] else "-seeds-" + "-".join(str(s) for s in seeds)
+    return f"cameras-train-{scene}-{mode}{suffix}.json"
 
 
 def _posed(old: Any, w2c: np.ndarray, intrinsics: tuple[float, float, float, float]) -> Any:
@@ -323,8 +398,8 @@ def realigned_metrics(trainer: Any, dataset: Any, by: str = "scene") -> dict[str
         trainer.recorder.scene = scored
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Measure every scene in both intrinsics modes; print a table, write JSON."""
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=None, help="shared data root")
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=list(SCENES))
@@ -343,17 +418,33 @@ def main(argv: list[str] | None = None) -> int:
         "--align", choices=("scene", "cameras"), default="scene",
         help="with --train: align the estimate by the scene's points or by the cameras",
     )  # fmt: skip
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, default=[0], metavar="N",
+        help="with --train: train each run once per seed (default 0)",
+    )  # fmt: skip
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure every scene in both intrinsics modes; print a table, write JSON."""
+    parser = build_parser()
     args = parser.parse_args(argv)
+    if len(set(args.seeds)) != len(args.seeds):
+        parser.error(f"--seeds: each seed once, got {args.seeds}")
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
             root / SCENES[args.train], args.iterations, args.threads, args.given,
-            tuple(args.runs), args.align,
+            tuple(args.runs), args.align, args.seeds,
         )  # fmt: skip
-        mode = "given" if args.given else "estimated"
-        out = results_dir() / f"cameras-train-{args.train}-{mode}.json"
+        result: dict[str, Any] = {"machine": machine_info(), "seeds": args.seeds, "rows": rows}
+        if len(args.seeds) > 1:
+            result["summary"] = seed_summary(rows)
+            print(json.dumps({"summary": result["summary"]}), flush=True)
+            print(format_summary(result["summary"]), flush=True)
+        out = results_dir() / results_name(args.train, args.given, args.seeds)
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({"machine": machine_info(), "rows": rows}, indent=1))
+        out.write_text(json.dumps(result, indent=1))
         print(f"written: {out}")
         return 0
     rows = []

@@ -3,13 +3,19 @@ frame, so that the two runs differ only by the estimation's errors."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
+import pytest
 import torch
 
-from benchmarks.cameras import with_estimated_cameras
+from benchmarks import cameras
+from benchmarks.cameras import build_parser, seed_summary, with_estimated_cameras
+from benchmarks.common import RESULTS_DIR_ENV
 from sparsesplat.engine.match.geometry import PinholeArrays, project
 from sparsesplat.engine.match.result import MatchSet
 from sparsesplat.engine.match.settings import MatchSettings
@@ -126,3 +132,103 @@ def test_the_scene_alignment_does_not_hide_a_planted_error() -> None:
     _, figures = with_estimated_cameras(scene, estimate, "scene", _matches(scene))
     assert figures["alignment_points"] == 60  # the second and third cameras' own points
     assert figures["max_deg"] > 2.0 and figures["cameras_max_deg"] > 2.0
+
+
+def _row(run: str, seed: int, psnr: float, ssim: float, lpips: float) -> dict[str, Any]:
+    return {"cameras": run, "seed": seed, "psnr": psnr, "ssim": ssim, "lpips": lpips}
+
+
+def test_seeds_default_to_zero_alone_and_repeat_is_refused() -> None:
+    parser = build_parser()
+    assert parser.parse_args(["--train", "juicebox_table"]).seeds == [0]
+    assert parser.parse_args(["--train", "juicebox_table", "--seeds", "1", "2"]).seeds == [1, 2]
+    with pytest.raises(SystemExit):
+        cameras.main(["--train", "juicebox_table", "--seeds", "1", "1"])
+
+
+def test_the_seed_summary_averages_each_run_and_the_gap_per_seed() -> None:
+    rows = [_row("dataset", 1, 17.0, 0.6, 0.37), _row("estimated", 1, 16.0, 0.5, 0.39),
+            _row("dataset", 2, 17.5, 0.7, 0.36), _row("estimated", 2, 15.8, 0.5, 0.41),
+            _row("refined", 2, 16.5, 0.55, 0.38)]  # fmt: skip
+    summary = seed_summary(rows)
+    dataset = summary["means"]["dataset"]
+    assert dataset["seeds"] == [1, 2]
+    assert dataset["psnr"] == pytest.approx(17.25) and dataset["lpips"] == pytest.approx(0.365)
+    assert summary["means"]["refined"]["seeds"] == [2]
+    gap = summary["psnr_gap"]["estimated"]
+    assert gap["per_seed"] == {1: pytest.approx(-1.0), 2: pytest.approx(-1.7)}
+    assert gap["mean"] == pytest.approx(-1.35)
+    assert summary["psnr_gap"]["refined"] == {"per_seed": {2: pytest.approx(-1.0)},
+                                              "mean": pytest.approx(-1.0)}  # fmt: skip
+    assert "dataset" not in summary["psnr_gap"]
+    assert "mean -1.35 dB" in cameras.format_summary(summary)
+
+
+@pytest.mark.parametrize(("seeds", "name"), [
+    ([], "cameras-train-juicebox_table-given.json"),
+    (["--seeds", "1", "2"], "cameras-train-juicebox_table-given-seeds-1-2.json"),
+])  # fmt: skip
+def test_main_hands_the_seeds_to_the_comparison_and_records_them(
+    seeds: list[str], name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The training itself is replaced: what is checked is the plumbing, from the command line
+    to :func:`train_comparison` and into the result file (summary only for several seeds)."""
+    calls = []
+
+    def fake(folder: Path, iterations: int | None, threads: int, given: bool,
+             runs: tuple[str, ...], by: str, seeds: list[int]) -> list[dict[str, Any]]:  # fmt: skip
+        calls.append((runs, seeds))
+        return [_row(run, s, 17.0 - (run != "dataset"), 0.6, 0.4) for s in seeds for run in runs]
+
+    monkeypatch.setattr(cameras, "train_comparison", fake)
+    monkeypatch.setenv(RESULTS_DIR_ENV, str(tmp_path))
+    argv = ["--data", str(tmp_path), "--train", "juicebox_table", "--given",
+            "--runs", "dataset", "estimated", *seeds]  # fmt: skip
+    assert cameras.main(argv) == 0
+    expected = [int(s) for s in seeds[1:]] or [0]
+    assert calls == [(("dataset", "estimated"), expected)]
+    written = json.loads((tmp_path / name).read_text())
+    assert written["seeds"] == expected
+    assert [(r["cameras"], r["seed"]) for r in written["rows"]] == [
+        (run, s) for s in expected for run in ("dataset", "estimated")
+    ]
+    if len(expected) > 1:
+        assert written["summary"]["psnr_gap"]["estimated"]["mean"] == pytest.approx(-1.0)
+    else:
+        assert "summary" not in written
+
+
+def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyPatch) -> None:
+    """:func:`train_comparison` with its training replaced: every (seed, run) pair is built
+    with that seed, the estimate is made once, and each row names its seed."""
+    from sparsesplat.engine import datasets
+    from sparsesplat.engine.train import run as run_module
+
+    dataset = SimpleNamespace(test=[1, 2], name="dataset")
+    estimated = SimpleNamespace(test=[1, 2], name="estimated")
+    estimates, built = [], []
+
+    def fake_estimate(*args: Any) -> str:
+        estimates.append(args)
+        return "estimate"
+
+    def fake_build_run(spec: Any, scene: Any, out_dir: Path) -> Any:
+        built.append((spec.overrides["seed"], scene.name, spec.iterations))
+        metrics = {"psnr": 10.0 + spec.overrides["seed"], "ssim": 0.5, "lpips": 0.3}
+        result = SimpleNamespace(metrics=metrics, seconds=1.0)
+        return SimpleNamespace(trainer=SimpleNamespace(run=lambda: result))
+
+    monkeypatch.setattr(datasets, "load_scene", lambda folder: dataset)
+    monkeypatch.setattr(cameras, "_estimate", fake_estimate)
+    monkeypatch.setattr(cameras, "with_estimated_cameras", lambda *a: (estimated, {"x": 1.0}))
+    monkeypatch.setattr(run_module, "build_run", fake_build_run)
+    rows = cameras.train_comparison(
+        Path("scene"), 7, 1, True, ("dataset", "estimated"), "scene", [3, 5]
+    )
+    assert len(estimates) == 1
+    assert built == [(3, "dataset", 7), (3, "estimated", 7), (5, "dataset", 7),
+                     (5, "estimated", 7)]  # fmt: skip
+    assert [(r["seed"], r["cameras"], r["psnr"]) for r in rows] == [
+        (3, "dataset", 13.0), (3, "estimated", 13.0), (5, "dataset", 15.0),
+        (5, "estimated", 15.0)]  # fmt: skip
+    assert "x" in rows[1] and "x" not in rows[0]  # the estimate's figures on its runs only
