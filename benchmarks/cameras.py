@@ -6,7 +6,12 @@ a guess, and with the dataset's intrinsics given. Against the dataset's poses af
 similarity alignment: registered views, median and largest rotation error (degrees), mean
 reprojection error, points, seconds, and the message when the estimation refused.
 
-    python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...]
+    python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...] [--match-side PX]
+
+``--match-side PX`` has the learned attempt match the photos enlarged to PX pixels instead of
+the matcher's default (the result goes to ``cameras-match-side-PX.json``): an estimate that
+moves by degrees when only this changes is not pinned down by its photos, whatever its
+orientation spread says.
 
 ``--train SCENE [--iterations N] [--given] [--seeds N ...]`` instead trains the scene with its
 preset, once per seed (``--seeds``, default 0) for each run: from the dataset's training
@@ -46,11 +51,14 @@ from benchmarks.quality import default_data_root
 SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""
 COLUMNS = ["scene", "intrinsics", "views", "registered", "median_deg", "max_deg",
-           "reproj_px", "points", "seconds", "outcome"]  # fmt: skip
+           "spread_deg", "reproj_px", "points", "seconds", "outcome"]  # fmt: skip
 
 
-def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
-    """One scene, one intrinsics mode: the figures of the module docstring."""
+def measure(
+    folder: Path, given: bool, threads: int, match_side: int | None = None
+) -> dict[str, Any]:
+    """One scene, one intrinsics mode: the figures of the module docstring; ``match_side``:
+    the learned attempt's matching size (:func:`attempts_matching_at`)."""
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.sfm import CameraEstimationError
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
@@ -59,9 +67,11 @@ def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
     views = scene.train
     cam = views[0].camera
     row: dict[str, Any] = {"views": len(views), "intrinsics": "given" if given else "estimated"}
+    if match_side is not None:
+        row["match_side"] = match_side
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            result = _estimate(scene, given, threads, Path(tmp))
+            result = _estimate(scene, given, threads, Path(tmp), match_side)
         except CameraEstimationError as exc:
             return {**row, "registered": 0, "outcome": str(exc)}
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
@@ -73,6 +83,7 @@ def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
         "median_deg": float(np.median(errors)),
         "max_deg": float(np.max(errors)),
         "reproj_px": result.reprojection_error_px,
+        "spread_deg": max((p.rotation_std_deg or 0.0) for p in result.photos),
         "points": len(result.points),
         "seconds": result.seconds,
         "focal_px": result.cameras.frames[0].fx,
@@ -81,7 +92,25 @@ def measure(folder: Path, given: bool, threads: int) -> dict[str, Any]:
     }
 
 
-def _estimate(scene: Any, given: bool, threads: int, tmp: Path) -> Any:
+def attempts_matching_at(match_side: int | None) -> tuple[Any, ...]:
+    """The estimate's attempts with the learned one matching photos enlarged to
+    ``match_side`` pixels (None: the attempts as they are). How firm an estimate is shows in
+    how much it moves when only the matcher's working size changes."""
+    import dataclasses
+
+    from sparsesplat.engine.sfm.attempts import ATTEMPTS
+
+    if match_side is None:
+        return ATTEMPTS
+    return tuple(
+        dataclasses.replace(a, match_min_side=match_side) if a.matcher is not None else a
+        for a in ATTEMPTS
+    )
+
+
+def _estimate(
+    scene: Any, given: bool, threads: int, tmp: Path, match_side: int | None = None
+) -> Any:
     """The cameras of ``scene``'s training views estimated from their pixels alone (PNGs in
     ``tmp``), with the dataset's intrinsics held fixed when ``given``."""
     from PIL import Image
@@ -96,7 +125,9 @@ def _estimate(scene: Any, given: bool, threads: int, tmp: Path) -> Any:
         Image.fromarray(pixels).save(paths[-1])
     cam = scene.train[0].camera
     intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy) if given else None
-    return estimate_cameras(paths, intrinsics, threads=threads)
+    return estimate_cameras(
+        paths, intrinsics, threads=threads, attempts=attempts_matching_at(match_side)
+    )
 
 
 ALIGN_MAX_ERROR_PX = 2.0
@@ -422,6 +453,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--seeds", nargs="+", type=int, default=[0], metavar="N",
         help="with --train: train each run once per seed (default 0)",
     )  # fmt: skip
+    parser.add_argument(
+        "--match-side", type=int, default=None, metavar="PX",
+        help="without --train: the learned attempt matches photos enlarged to PX pixels "
+        "(default: the matcher's own size)",
+    )  # fmt: skip
     return parser
 
 
@@ -431,6 +467,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if len(set(args.seeds)) != len(args.seeds):
         parser.error(f"--seeds: each seed once, got {args.seeds}")
+    if args.train and args.match_side is not None:
+        parser.error("--match-side goes without --train")
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
@@ -450,11 +488,15 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name in args.scenes:
         for given in (False, True):
-            row = {"scene": name, **measure(root / SCENES[name], given, args.threads)}
+            row = {
+                "scene": name,
+                **measure(root / SCENES[name], given, args.threads, args.match_side),
+            }
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(format_table(rows, COLUMNS))
-    out = results_dir() / "cameras.json"
+    side = "" if args.match_side is None else f"-match-side-{args.match_side}"
+    out = results_dir() / f"cameras{side}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": machine_info(), "rows": rows}, indent=1))
     print(f"written: {out}")

@@ -28,6 +28,10 @@ class Attempt:
     matcher: str | None = None
     """A learned matcher of ``engine.match`` (its keypoints and matches replace SIFT's; the
     SIFT fields above then only register the photos), or None for COLMAP's SIFT matching."""
+    match_min_side: int | None = None
+    """With ``matcher``: the size photos are enlarged to before matching
+    (``MatchSettings.min_side``); None keeps the matcher's default. A lever for measuring how
+    firm an estimate is (``benchmarks/cameras.py --match-side``), not a setting to tune."""
 
 
 ATTEMPTS: tuple[Attempt, ...] = (

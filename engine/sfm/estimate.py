@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from sparsesplat.api.cameras import (
     rigid_inverse,
 )
 from sparsesplat.engine.match.errors import MissingMatchDependency
-from sparsesplat.engine.sfm.attempts import ATTEMPTS
+from sparsesplat.engine.sfm.attempts import ATTEMPTS, Attempt
 from sparsesplat.engine.sfm.check import (
     input_problem,
     left_out,
@@ -106,6 +107,7 @@ def estimate_cameras(
     threads: int = 1,
     seed: int = 0,
     labels: list[str] | None = None,
+    attempts: Sequence[Attempt] = ATTEMPTS,
 ) -> CameraEstimate:
     """Estimate one shared pinhole camera and a pose per photo in ``paths`` (all the same
     size), or raise :class:`CameraEstimationError` naming the photos at fault and what to do.
@@ -113,12 +115,15 @@ def estimate_cameras(
     ``intrinsics`` are held fixed when given; else an EXIF focal length (35 mm equivalent) or
     1.2x the longer side starts bundle adjustment. Messages name the photos by ``labels``
     (e.g. the names they were uploaded under; default: their file names). The settings of
-    :data:`ATTEMPTS` are tried in order until a result passes every check of :mod:`.check`."""
+    ``attempts`` (default :data:`ATTEMPTS`) are tried in order until a result passes every
+    check of :mod:`.check`; raises ValueError when there are none."""
     started = time.perf_counter()
     names = [p.name for p in paths]
     shown = labels if labels is not None else names
     if len(shown) != len(paths):
         raise ValueError(f"{len(shown)} labels for {len(paths)} photos")
+    if not attempts:
+        raise ValueError("no camera estimation attempts to try")
     if len(paths) < MIN_PHOTOS:
         raise CameraEstimationError(
             f"need at least {MIN_PHOTOS} photos of the same scene from different places to "
@@ -135,7 +140,7 @@ def estimate_cameras(
         image_dir = paths[0].parent
         if any(p.parent != image_dir for p in paths):
             raise CameraEstimationError("the photos must be in one folder")
-        for k, attempt in enumerate(ATTEMPTS):
+        for k, attempt in enumerate(attempts):
             if attempt.matcher is not None and source == "guess":
                 # From a guessed focal length, bundle adjustment over a few photos around an
                 # object converged to wrong frames (juicebox_table: focal 40 % off, rotations
@@ -157,12 +162,14 @@ def estimate_cameras(
                                                          "problem": problem})  # fmt: skip
             if problem is None:
                 break
+    if problem is None and rec is None:  # every attempt skipped or unavailable
+        problem = "no matching attempt could run"
     if problem is not None or rec is None:
         hint = f"; {LEARNED_NEEDS_FOCAL}" if skipped_learned else ""
         raise CameraEstimationError(f"cannot estimate the cameras: {problem}{hint}")
-    reasons = left_out(shown, stats, rec, ATTEMPTS[k].min_inliers) or {}
+    reasons = left_out(shown, stats, rec, attempts[k].min_inliers) or {}
     if reasons:
-        _refuse_mirrored(image_dir, names, shown, reasons, rec, ATTEMPTS[k].min_inliers, seed)
+        _refuse_mirrored(image_dir, names, shown, reasons, rec, attempts[k].min_inliers, seed)
     for _, reason in sorted(reasons.items()):
         log.warning("photo left out of the camera estimate: %s", reason)
     frame = normalise(rec)
@@ -194,7 +201,7 @@ def estimate_cameras(
         points=frame.points.astype(np.float32),
         colours=rec.colours,
         seconds=time.perf_counter() - started,
-        attempt=ATTEMPTS[k].name,
+        attempt=attempts[k].name,
         reprojection_error_px=rec.reprojection_error_px,
         triangulation_angle_deg=median_triangulation_angle_deg(rec),
         focal_source=source,

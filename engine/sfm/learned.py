@@ -37,11 +37,17 @@ def load_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         return np.asarray(image.convert("RGB")).copy(), None
 
 
-def learned_matches(image_dir: Path, names: list[str], method: str) -> MatchSet:
+def learned_matches(
+    image_dir: Path, names: list[str], method: str, min_side: int | None = None
+) -> MatchSet:
     """Match every pair of the photos ``names`` in ``image_dir`` with the learned matcher
-    ``method`` (one of ``engine.match.METHODS``), alpha channels as masks."""
+    ``method`` (one of ``engine.match.METHODS``), alpha channels as masks; ``min_side``: the
+    size small photos are enlarged to first (None: ``MatchSettings``' default)."""
     photos, masks = zip(*(load_photo(image_dir / name) for name in names), strict=True)
-    return match_images(list(photos), MatchSettings(method=method), list(masks))
+    settings = MatchSettings(method=method)
+    if min_side is not None:
+        settings = MatchSettings(method=method, min_side=min_side)
+    return match_images(list(photos), settings, list(masks))
 
 
 def import_matches(pycolmap: Any, database: Path, names: list[str], matches: MatchSet,

@@ -3,6 +3,7 @@ frame, so that the two runs differ only by the estimation's errors."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -232,3 +233,42 @@ def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyP
         (3, "dataset", 13.0), (3, "estimated", 13.0), (5, "dataset", 15.0),
         (5, "estimated", 15.0)]  # fmt: skip
     assert "x" in rows[1] and "x" not in rows[0]  # the estimate's figures on its runs only
+
+
+def test_match_side_changes_only_the_learned_attempt() -> None:
+    from sparsesplat.engine.sfm.attempts import ATTEMPTS
+
+    assert cameras.attempts_matching_at(None) is ATTEMPTS
+    moved = cameras.attempts_matching_at(640)
+    assert [a.name for a in moved] == [a.name for a in ATTEMPTS]
+    for old, new in zip(ATTEMPTS, moved, strict=True):
+        expected = 640 if old.matcher is not None else None
+        assert new.match_min_side == expected
+        assert dataclasses.replace(new, match_min_side=None) == old
+    assert any(a.match_min_side == 640 for a in moved)
+
+
+def test_main_hands_the_match_side_to_each_estimate_and_names_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The estimation itself is replaced: what is checked is the plumbing from the command
+    line to :func:`measure`, into each row and into the result file's name."""
+    calls = []
+
+    def fake(folder: Path, given: bool, threads: int, match_side: int | None) -> dict[str, Any]:
+        calls.append((folder.name, given, match_side))
+        return {"views": 3, "registered": 3, "outcome": "ok (learned)", "match_side": match_side}
+
+    monkeypatch.setattr(cameras, "measure", fake)
+    monkeypatch.setenv(RESULTS_DIR_ENV, str(tmp_path))
+    argv = ["--data", str(tmp_path), "--scenes", "juicebox_table", "--match-side", "640"]
+    assert cameras.main(argv) == 0
+    assert calls == [("juicebox_table", False, 640), ("juicebox_table", True, 640)]
+    written = json.loads((tmp_path / "cameras-match-side-640.json").read_text())
+    assert [r["match_side"] for r in written["rows"]] == [640, 640]
+    assert not (tmp_path / "cameras.json").exists()
+
+
+def test_match_side_is_refused_with_train() -> None:
+    with pytest.raises(SystemExit):
+        cameras.main(["--train", "juicebox_table", "--match-side", "640"])

@@ -15,6 +15,7 @@ from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.sfm import CameraEstimate, CameraEstimationError, estimate_cameras
 from sparsesplat.engine.sfm.align import align, rotation_errors_deg
+from sparsesplat.engine.sfm.attempts import ATTEMPTS
 from sparsesplat.engine.sfm.store import write_estimate
 from tests.engine.sfm.textured import FOCAL, HEIGHT, WIDTH, camera_poses, write_photos
 
@@ -188,3 +189,36 @@ def test_command_writes_cameras_and_refuses_one_photo(three, tmp_path) -> None:
                          capture_output=True, text=True, timeout=300)  # fmt: skip
     assert one.returncode == 2 and "at least 2 photos" in one.stderr
     assert not (tmp_path / "one.json").exists()
+
+
+def test_no_attempts_is_a_programming_error(three) -> None:
+    with pytest.raises(ValueError, match="no camera estimation attempts"):
+        estimate_cameras(three[0], threads=1, attempts=())
+
+
+def test_when_no_attempt_can_run_the_refusal_says_so(three) -> None:
+    """Only the learned attempt, and no focal length to run it with: nothing ran, and the
+    message says that and what to give, not a bare 'None'."""
+    learned = tuple(a for a in ATTEMPTS if a.matcher is not None)
+    with pytest.raises(CameraEstimationError) as raised:
+        estimate_cameras(three[0], threads=1, attempts=learned)
+    assert "no matching attempt could run" in str(raised.value)
+    assert "focal length is known" in str(raised.value)
+    assert "None" not in str(raised.value)
+
+
+def test_the_learned_attempt_matches_at_its_own_size(tmp_path, monkeypatch) -> None:
+    """``Attempt.match_min_side`` reaches the matcher's settings; None keeps its default."""
+    from sparsesplat.engine.match.settings import MatchSettings
+    from sparsesplat.engine.sfm import learned
+
+    seen = []
+    monkeypatch.setattr(
+        learned, "match_images", lambda photos, settings, masks: seen.append(settings)
+    )
+    Image.new("RGB", (32, 24)).save(tmp_path / "a.png")
+    Image.new("RGB", (32, 24)).save(tmp_path / "b.png")
+    learned.learned_matches(tmp_path, ["a.png", "b.png"], "xfeat-lighterglue", 640)
+    learned.learned_matches(tmp_path, ["a.png", "b.png"], "xfeat-lighterglue")
+    assert seen[0].min_side == 640 and seen[0].method == "xfeat-lighterglue"
+    assert seen[1] == MatchSettings(method="xfeat-lighterglue")
