@@ -34,6 +34,7 @@ from sparsesplat.engine.sfm.check import (
 )
 from sparsesplat.engine.sfm.errors import CameraEstimationError
 from sparsesplat.engine.sfm.exif import exif_focal_px
+from sparsesplat.engine.sfm.firmness import firmness
 from sparsesplat.engine.sfm.frame import normalise
 from sparsesplat.engine.sfm.mirror import mirrored
 from sparsesplat.engine.sfm.reconstruct import (
@@ -136,6 +137,7 @@ def estimate_cameras(
     problem: str | None = None
     rec: Reconstruction | None = None
     skipped_learned = False
+    furthest: tuple[int, str] | None = None  # the failed attempt that placed most photos, why
     with tempfile.TemporaryDirectory(prefix="sparsesplat-sfm-") as tmp:
         image_dir = paths[0].parent
         if any(p.parent != image_dir for p in paths):
@@ -158,10 +160,23 @@ def estimate_cameras(
             if problem is not None:  # a blank photo or copies of one view: no setting helps
                 break
             problem = result_problem(shown, stats, rec, attempt.min_inliers)
+            if problem is None and rec is not None:
+                database = Path(tmp) / str(k) / "database.db"
+                problem = firmness(
+                    database, image_dir, names, prior, attempt, rec, threads, seed
+                ).problem(shown)
             log.info("camera estimation attempt", extra={"attempt": attempt.name,
                                                          "problem": problem})  # fmt: skip
             if problem is None:
                 break
+            placed = 0 if rec is None else len(rec.world_to_camera)
+            if furthest is None or placed > furthest[0]:
+                furthest = (placed, problem)
+        else:
+            # No attempt passed: say why the one that got furthest failed (a later retry
+            # that placed fewer photos would blame matches the earlier one had).
+            if furthest is not None:
+                problem = furthest[1]
     if problem is None and rec is None:  # every attempt skipped or unavailable
         problem = "no matching attempt could run"
     if problem is not None or rec is None:

@@ -149,14 +149,30 @@ def run_colmap(
             database, matching_options=matching, verification_options=verification, device=cpu
         )
     stats = _match_stats(pycolmap, database, names)
+    return map_database(database, image_dir, names, prior, attempt, threads, seed), stats
+
+
+def map_database(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    prior: CameraPrior,
+    attempt: Attempt,
+    threads: int,
+    seed: int,
+) -> Reconstruction | None:
+    """COLMAP's incremental mapper on the verified matches of ``database`` (the photos
+    ``names`` in ``image_dir``); the largest model, or None when no initial pair was found.
+    The model is written next to the database (``sparse_<database stem>``)."""
+    pycolmap = require_pycolmap()
     options = _mapper_options(pycolmap, prior, attempt, threads, seed)
-    out = work_dir / "sparse"
+    out = database.parent / ("sparse" if database.stem == "database" else f"sparse_{database.stem}")
     out.mkdir(exist_ok=True)
     models = pycolmap.incremental_mapping(database, image_dir, out, options=options)
     if not models:
-        return None, stats
+        return None
     best = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
-    return _plain(best, names), stats
+    return _plain(best, names)
 
 
 def _mapper_options(
