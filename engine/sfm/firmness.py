@@ -4,18 +4,18 @@ of the verified matches left out.
 A photo can be placed with a reprojection error under half a pixel and an orientation spread
 under a degree and still hang on a few dozen matches. juicebox_table's second training photo
 (a phone capture, 480x270) shares about 110 verified learned matches with each of the other
-two, and 60-78 % of them lie within 2 px of the dataset's epipolar lines. It was placed 0.8°
-from the dataset's orientation when matched at the matcher's default size, 3.6° off when
-matched at 640 px (spread 0.57°: a confident wrong frame), and not at all at 720, 960 or
-1024 px; with a fifth of its verified matches left out at random it was not placed in 7 of 8
-tries. DTU's three views, placed from the same matcher, were placed in 8 of 8 tries with half
-of their matches left out, each moving at most 1.1°
+two, and only 60-78 % of them lie within 2 px of the dataset's epipolar lines (88-95 % between
+the other two photos). Matched at the matcher's default 800 px it was placed 0.8° from the
+dataset's orientation; matched at 640 px, 3.6° off with an orientation spread of 0.57° (a
+confident wrong frame); at 720 or 960 px not at all. In every try below it is lost. DTU's
+views, placed by the same matcher, move at most 0.4° in the tries
 (docs/experiments/2026-11-30-firm-placement.md).
 
 So the mapping is repeated :data:`TRIES` times, each keeping a random :data:`KEEP_FRACTION` of
 every pair's verified matches (seeded, so an estimate is reproducible). A photo that is not
 placed in every try, or whose orientation moves by more than :data:`MAX_MOVE_DEG` against the
-full solution, is not settled by its photos, and the estimate is refused naming it.
+full solution, is not settled by its photos: the attempt fails naming it, and the next one
+is tried.
 """
 
 from __future__ import annotations
