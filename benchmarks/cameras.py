@@ -108,21 +108,28 @@ def attempts_matching_at(match_side: int | None) -> tuple[Any, ...]:
     )
 
 
+def write_training_photos(scene: Any, folder: Path) -> list[Path]:
+    """``scene``'s training views as 8-bit PNGs ``000.png``, ``001.png``, ... in ``folder``:
+    the photos a user would upload."""
+    from PIL import Image
+
+    paths = []
+    for i, view in enumerate(scene.train):
+        pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
+        paths.append(folder / f"{i:03d}.png")
+        Image.fromarray(pixels).save(paths[-1])
+    return paths
+
+
 def _estimate(
     scene: Any, given: bool, threads: int, tmp: Path, match_side: int | None = None
 ) -> Any:
     """The cameras of ``scene``'s training views estimated from their pixels alone (PNGs in
     ``tmp``), with the dataset's intrinsics held fixed when ``given``."""
-    from PIL import Image
-
     from sparsesplat.api.cameras import Intrinsics
     from sparsesplat.engine.sfm import estimate_cameras
 
-    paths = []
-    for i, view in enumerate(scene.train):
-        pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
-        paths.append(tmp / f"{i:03d}.png")
-        Image.fromarray(pixels).save(paths[-1])
+    paths = write_training_photos(scene, tmp)
     cam = scene.train[0].camera
     intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy) if given else None
     return estimate_cameras(

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 import sparsesplat.engine.sfm.firmness as firmness_module
+from benchmarks.cameras import write_training_photos
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
 from sparsesplat.engine.sfm.firmness import KEEP_FRACTION, MAX_MOVE_DEG, Firmness, thin_database
@@ -119,11 +119,7 @@ def test_juicebox_second_photo_is_refused_and_without_the_check_it_would_be_plac
     from sparsesplat.engine.datasets import load_scene
 
     scene = load_scene(SHARED_DATA / "nerf_llff_data" / "juicebox_table")
-    paths = []
-    for i, view in enumerate(scene.train):
-        pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
-        paths.append(tmp_path / f"{i:03d}.png")
-        Image.fromarray(pixels).save(paths[-1])
+    paths = write_training_photos(scene, tmp_path)
     cam = scene.train[0].camera
     given = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)
     with pytest.raises(CameraEstimationError) as refused:
