@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sparsesplat.engine.sfm.firmness as firmness_module
 from benchmarks.cameras import write_training_photos
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
