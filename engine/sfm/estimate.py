@@ -47,11 +47,11 @@ from sparsesplat.engine.sfm.uncertainty import residuals
 
 log = logging.getLogger(__name__)
 
-LEARNED_NEEDS_FOCAL = (
-    "photos taken around an object (20-45 degrees apart) can be placed by learned matching "
-    "when the camera's focal length is known: give the intrinsics, or keep the photos' EXIF"
+FOCAL_GUESSED = (
+    "the focal length was guessed (no intrinsics given, no EXIF): giving it (the intrinsics, "
+    "or photos with their EXIF) leaves bundle adjustment fewer ways to go wrong"
 )
-"""Added to a refusal when the learned attempt was skipped for want of a focal length."""
+"""Added to a refusal when the focal length was a guess."""
 DEFAULT_FOCAL_FACTOR = 1.2
 """Focal length guess without EXIF or user intrinsics: this times the longer image side
 (COLMAP's own default, a ~45° field of view); bundle adjustment refines it."""
@@ -136,19 +136,17 @@ def estimate_cameras(
     prior, source = _prior(paths, width, height, intrinsics)
     problem: str | None = None
     rec: Reconstruction | None = None
-    skipped_learned = False
     furthest: tuple[int, str] | None = None  # the failed attempt that placed most photos, why
     with tempfile.TemporaryDirectory(prefix="sparsesplat-sfm-") as tmp:
         image_dir = paths[0].parent
         if any(p.parent != image_dir for p in paths):
             raise CameraEstimationError("the photos must be in one folder")
         for k, attempt in enumerate(attempts):
-            if attempt.matcher is not None and source == "guess":
-                # From a guessed focal length, bundle adjustment over a few photos around an
-                # object converged to wrong frames (juicebox_table: focal 40 % off, rotations
-                # 4.8 degrees): learned matches are used only with a known focal length.
-                skipped_learned = True
-                continue
+            # From a guessed focal length the learned attempt once returned a wrong frame
+            # (juicebox_table: focal 40 % off, rotations 4.5-5.8 degrees), so it used to run
+            # only with a known focal length; the firmness check now refuses that frame (its
+            # second photo is lost in 3 of 4 tries) and places fox and DTU within 0.6 degrees
+            # from a guess (docs/experiments/2026-11-30-firm-placement.md).
             try:
                 rec, stats = run_colmap(
                     image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
@@ -177,10 +175,10 @@ def estimate_cameras(
             # that placed fewer photos would blame matches the earlier one had).
             if furthest is not None:
                 problem = furthest[1]
-    if problem is None and rec is None:  # every attempt skipped or unavailable
+    if problem is None and rec is None:  # every attempt unavailable (no match extra)
         problem = "no matching attempt could run"
     if problem is not None or rec is None:
-        hint = f"; {LEARNED_NEEDS_FOCAL}" if skipped_learned else ""
+        hint = f"; {FOCAL_GUESSED}" if source == "guess" else ""
         raise CameraEstimationError(f"cannot estimate the cameras: {problem}{hint}")
     reasons = left_out(shown, stats, rec, attempts[k].min_inliers) or {}
     if reasons:

@@ -15,7 +15,6 @@ from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.sfm import CameraEstimate, CameraEstimationError, estimate_cameras
 from sparsesplat.engine.sfm.align import align, rotation_errors_deg
-from sparsesplat.engine.sfm.attempts import ATTEMPTS
 from sparsesplat.engine.sfm.store import write_estimate
 from tests.engine.sfm.textured import FOCAL, HEIGHT, WIDTH, camera_poses, write_photos
 
@@ -196,14 +195,20 @@ def test_no_attempts_is_a_programming_error(three) -> None:
         estimate_cameras(three[0], threads=1, attempts=())
 
 
-def test_when_no_attempt_can_run_the_refusal_says_so(three) -> None:
-    """Only the learned attempt, and no focal length to run it with: nothing ran, and the
-    message says that and what to give, not a bare 'None'."""
-    learned = tuple(a for a in ATTEMPTS if a.matcher is not None)
+def test_when_no_attempt_can_run_the_refusal_says_so(three, monkeypatch) -> None:
+    """Every attempt unavailable (as without the match extra, for learned attempts): the
+    message says nothing ran, and that the focal length was a guess, not a bare 'None'."""
+    from sparsesplat.engine.match.errors import MissingMatchDependency
+    from sparsesplat.engine.sfm import estimate as module
+
+    def unavailable(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise MissingMatchDependency("no match extra")
+
+    monkeypatch.setattr(module, "run_colmap", unavailable)
     with pytest.raises(CameraEstimationError) as raised:
-        estimate_cameras(three[0], threads=1, attempts=learned)
+        estimate_cameras(three[0], threads=1)
     assert "no matching attempt could run" in str(raised.value)
-    assert "focal length is known" in str(raised.value)
+    assert "the focal length was guessed" in str(raised.value)
     assert "None" not in str(raised.value)
 
 
