@@ -141,12 +141,12 @@ def estimate_cameras(
         image_dir = paths[0].parent
         if any(p.parent != image_dir for p in paths):
             raise CameraEstimationError("the photos must be in one folder")
+        # Every attempt runs whatever the focal length's source. From a guess the learned one
+        # once returned a wrong frame (juicebox_table: focal 40 % off, rotations 4.5-5.8
+        # degrees) and ran only with a known focal; the firmness check now refuses that frame
+        # (its second photo is lost in 3 of 4 tries) and places fox and DTU within 0.6
+        # degrees from a guess (docs/experiments/2026-11-30-firm-placement.md).
         for k, attempt in enumerate(attempts):
-            # From a guessed focal length the learned attempt once returned a wrong frame
-            # (juicebox_table: focal 40 % off, rotations 4.5-5.8 degrees), so it used to run
-            # only with a known focal length; the firmness check now refuses that frame (its
-            # second photo is lost in 3 of 4 tries) and places fox and DTU within 0.6 degrees
-            # from a guess (docs/experiments/2026-11-30-firm-placement.md).
             try:
                 rec, stats = run_colmap(
                     image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
