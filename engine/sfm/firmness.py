@@ -128,5 +128,6 @@ def firmness(
         est = [again.world_to_camera[i] for i in both]
         full = [rec.world_to_camera[i] for i in both]
         for i, error in zip(both, rotation_errors_deg(est, full, align(est, full)), strict=True):
-            moved[i] = max(moved[i], float(error))
+            if not error <= moved[i]:  # also keeps a nan, which :meth:`Firmness.problem` refuses
+                moved[i] = float(error)
     return Firmness(TRIES, {i: n for i, n in unplaced.items() if n}, moved)

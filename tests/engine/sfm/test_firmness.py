@@ -10,12 +10,14 @@ and 3.6° off, with an orientation spread of 0.57°, at 640 px
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import sparsesplat.engine.sfm.firmness as firmness_module
 from benchmarks.cameras import write_training_photos
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
@@ -180,3 +182,23 @@ def test_the_tries_find_a_photo_planted_on_too_few_matches(tmp_path: Path) -> No
     problem = found.problem(names)
     assert problem is not None and problem.startswith("photo 3 (photo_2.png) is placed on too few")
     assert found.unplaced.get(2, 0) >= 1
+
+
+def test_a_try_that_cannot_be_aligned_is_kept_as_nan_and_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A try whose rotation errors come out nan must not read as 'did not move' (a plain
+    ``max(0, nan)`` would keep the 0)."""
+    photos = write_photos(tmp_path / "photos", camera_poses(3))
+    names = [p.name for p in photos]
+    prior = CameraPrior(FOCAL, FOCAL, WIDTH / 2, HEIGHT / 2, fixed=True)
+    rec, _ = run_colmap(photos[0].parent, names, prior, ATTEMPTS[0], tmp_path / "work", 1, 0)
+    assert rec is not None
+    monkeypatch.setattr(
+        firmness_module, "rotation_errors_deg", lambda est, ref, sim: [float("nan")] * len(est)
+    )
+    found = firmness(tmp_path / "work" / "database.db", photos[0].parent, names, prior,
+                     ATTEMPTS[0], rec, 1, 0)  # fmt: skip
+    assert all(math.isnan(m) for m in found.moved_deg.values())
+    problem = found.problem(names)
+    assert problem is not None and "an unknown angle" in problem
