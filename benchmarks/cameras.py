@@ -8,6 +8,10 @@ reprojection error, points, seconds, and the message when the estimation refused
 
     python -m benchmarks.cameras [--data ROOT] [--scenes flower horns ...] [--match-side PX]
 
+``--scale K`` enlarges the photos K times (bicubic; the intrinsics scaled with them) before
+the estimate (``cameras-scale-K.json``): the seconds at another photo size, e.g. NeRF-synthetic's
+original 800x800 from the shared 400x400 copy. The rotation errors stay comparable.
+
 ``--match-side PX`` has the learned attempt match the photos enlarged to PX pixels instead of
 the matcher's default (the result goes to ``cameras-match-side-PX.json``): an estimate that
 moves by degrees when only this changes is not pinned down by its photos, whatever its
@@ -50,15 +54,19 @@ from benchmarks.quality import default_data_root
 
 SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""
-COLUMNS = ["scene", "intrinsics", "views", "registered", "median_deg", "max_deg",
+COLUMNS = ["scene", "size", "intrinsics", "views", "registered", "median_deg", "max_deg",
            "spread_deg", "reproj_px", "points", "seconds", "outcome"]  # fmt: skip
 
 
 def measure(
-    folder: Path, given: bool, threads: int, match_side: int | None = None
+    folder: Path, given: bool, threads: int, match_side: int | None = None, scale: int = 1
 ) -> dict[str, Any]:
     """One scene, one intrinsics mode: the figures of the module docstring; ``match_side``:
-    the learned attempt's matching size (:func:`attempts_matching_at`)."""
+    the learned attempt's matching size (:func:`attempts_matching_at`); ``scale``: the photos
+    enlarged this many times (:func:`write_training_photos`). A refusal's row has its seconds
+    too: the time a user waits for it."""
+    import time
+
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.sfm import CameraEstimationError
     from sparsesplat.engine.sfm.align import align, rotation_errors_deg
@@ -69,11 +77,16 @@ def measure(
     row: dict[str, Any] = {"views": len(views), "intrinsics": "given" if given else "estimated"}
     if match_side is not None:
         row["match_side"] = match_side
+    if scale != 1:
+        row["scale"] = scale
+    row["size"] = f"{cam.width * scale}x{cam.height * scale}"
     with tempfile.TemporaryDirectory() as tmp:
+        started = time.perf_counter()
         try:
-            result = _estimate(scene, given, threads, Path(tmp), match_side)
+            result = _estimate(scene, given, threads, Path(tmp), match_side, scale)
         except CameraEstimationError as exc:
-            return {**row, "registered": 0, "outcome": str(exc)}
+            seconds = time.perf_counter() - started  # the photos' writing included
+            return {**row, "registered": 0, "seconds": seconds, "outcome": str(exc)}
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
     ref = [v.camera.world_to_camera.double().numpy() for v in views]
     errors = rotation_errors_deg(est, ref, align(est, ref))
@@ -108,30 +121,41 @@ def attempts_matching_at(match_side: int | None) -> tuple[Any, ...]:
     )
 
 
-def write_training_photos(scene: Any, folder: Path) -> list[Path]:
+def write_training_photos(scene: Any, folder: Path, scale: int = 1) -> list[Path]:
     """``scene``'s training views as 8-bit PNGs ``000.png``, ``001.png``, ... in ``folder``:
-    the photos a user would upload."""
+    the photos a user would upload, enlarged ``scale`` times (bicubic) when it is over 1."""
     from PIL import Image
 
+    if scale < 1:
+        raise ValueError(f"scale must be a whole number >= 1, got {scale}")
     paths = []
     for i, view in enumerate(scene.train):
         pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
+        image = Image.fromarray(pixels)
+        if scale > 1:
+            image = image.resize((image.width * scale, image.height * scale), Image.Resampling.BICUBIC)
         paths.append(folder / f"{i:03d}.png")
-        Image.fromarray(pixels).save(paths[-1])
+        image.save(paths[-1])
     return paths
 
 
 def _estimate(
-    scene: Any, given: bool, threads: int, tmp: Path, match_side: int | None = None
-) -> Any:
+    scene: Any, given: bool, threads: int, tmp: Path, match_side: int | None = None,
+    scale: int = 1,
+) -> Any:  # fmt: skip
     """The cameras of ``scene``'s training views estimated from their pixels alone (PNGs in
-    ``tmp``), with the dataset's intrinsics held fixed when ``given``."""
+    ``tmp``, enlarged ``scale`` times), with the dataset's intrinsics (scaled alike) held
+    fixed when ``given``. Pixel coordinates scale exactly: the centres are at +0.5 on both
+    sides of the resize."""
     from sparsesplat.api.cameras import Intrinsics
     from sparsesplat.engine.sfm import estimate_cameras
 
-    paths = write_training_photos(scene, tmp)
+    paths = write_training_photos(scene, tmp, scale)
     cam = scene.train[0].camera
-    intrinsics = Intrinsics(fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy) if given else None
+    k = float(scale)
+    intrinsics = (
+        Intrinsics(fx=cam.fx * k, fy=cam.fy * k, cx=cam.cx * k, cy=cam.cy * k) if given else None
+    )
     return estimate_cameras(
         paths, intrinsics, threads=threads, attempts=attempts_matching_at(match_side)
     )
@@ -465,6 +489,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="without --train: the learned attempt matches photos enlarged to PX pixels "
         "(default: the matcher's own size)",
     )  # fmt: skip
+    parser.add_argument(
+        "--scale", type=int, default=1, metavar="K",
+        help="without --train: enlarge the photos K times before the estimate (the seconds "
+        "at a larger size; default 1)",
+    )  # fmt: skip
     return parser
 
 
@@ -476,6 +505,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds: each seed once, got {args.seeds}")
     if args.train and args.match_side is not None:
         parser.error("--match-side goes without --train")
+    if args.scale < 1 or (args.train and args.scale != 1):
+        parser.error("--scale takes a whole number >= 1, without --train")
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
@@ -497,12 +528,13 @@ def main(argv: list[str] | None = None) -> int:
         for given in (False, True):
             row = {
                 "scene": name,
-                **measure(root / SCENES[name], given, args.threads, args.match_side),
+                **measure(root / SCENES[name], given, args.threads, args.match_side, args.scale),
             }
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(format_table(rows, COLUMNS))
     side = "" if args.match_side is None else f"-match-side-{args.match_side}"
+    side += "" if args.scale == 1 else f"-scale-{args.scale}"
     out = results_dir() / f"cameras{side}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": machine_info(), "rows": rows}, indent=1))

@@ -255,8 +255,11 @@ def test_main_hands_the_match_side_to_each_estimate_and_names_the_file(
     line to :func:`measure`, into each row and into the result file's name."""
     calls = []
 
-    def fake(folder: Path, given: bool, threads: int, match_side: int | None) -> dict[str, Any]:
+    def fake(
+        folder: Path, given: bool, threads: int, match_side: int | None, scale: int
+    ) -> dict[str, Any]:
         calls.append((folder.name, given, match_side))
+        assert scale == 1
         return {"views": 3, "registered": 3, "outcome": "ok (learned)", "match_side": match_side}
 
     monkeypatch.setattr(cameras, "measure", fake)
@@ -272,3 +275,50 @@ def test_main_hands_the_match_side_to_each_estimate_and_names_the_file(
 def test_match_side_is_refused_with_train() -> None:
     with pytest.raises(SystemExit):
         cameras.main(["--train", "juicebox_table", "--match-side", "640"])
+
+
+def test_photos_are_enlarged_by_the_scale_and_pixel_coordinates_scale_exactly(
+    tmp_path: Path,
+) -> None:
+    """``--scale 2``: each photo written at twice its size, a block average of which gives the
+    original back (bicubic keeps a linear ramp's means), so the intrinsics scale by 2."""
+    from PIL import Image
+
+    ramp = torch.linspace(0, 1, 24)[None, :, None].expand(16, 24, 3).contiguous()
+    scene = SimpleNamespace(train=[SimpleNamespace(image=ramp)] * 2)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (one, _) = cameras.write_training_photos(scene, tmp_path / "a")
+    paths = cameras.write_training_photos(scene, tmp_path / "b", 2)
+    assert [p.name for p in paths] == ["000.png", "001.png"]
+    small = np.asarray(Image.open(one), dtype=np.float64)
+    big = np.asarray(Image.open(paths[0]), dtype=np.float64)
+    assert small.shape == (16, 24, 3) and big.shape == (32, 48, 3)
+    means = big.reshape(16, 2, 24, 2, 3).mean(axis=(1, 3))
+    # Inside the border a bicubic 2x of a linear ramp averages back to the ramp within the
+    # 8-bit rounding of both images (0.5 each) and the kernel's overshoot at the clamped ends.
+    assert np.abs(means[:, 2:-2] - small[:, 2:-2]).max() <= 1.0
+    with pytest.raises(ValueError, match="scale"):
+        cameras.write_training_photos(scene, tmp_path / "b", 0)
+
+
+def test_scale_names_the_file_and_is_refused_with_train(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scales = []
+
+    def fake(
+        folder: Path, given: bool, threads: int, match_side: Any, scale: int
+    ) -> dict[str, Any]:
+        scales.append(scale)
+        return {"views": 3, "registered": 0, "seconds": 1.0, "outcome": "refused"}
+
+    monkeypatch.setattr(cameras, "measure", fake)
+    monkeypatch.setenv(RESULTS_DIR_ENV, str(tmp_path))
+    assert cameras.main(["--data", str(tmp_path), "--scenes", "mic", "--scale", "2"]) == 0
+    assert scales == [2, 2]
+    assert (tmp_path / "cameras-scale-2.json").exists()
+    assert not (tmp_path / "cameras.json").exists()
+    for argv in (["--scale", "0"], ["--train", "mic", "--scale", "2"]):
+        with pytest.raises(SystemExit):
+            cameras.main(argv)
