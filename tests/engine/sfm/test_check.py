@@ -3,6 +3,12 @@ cannot start is told, from the match counts alone."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
 from sparsesplat.engine.sfm.check import MATCHER_REACH, best_partner, result_problem
 from sparsesplat.engine.sfm.reconstruct import MatchStats, PairStats
 
@@ -40,3 +46,34 @@ def test_best_partner_takes_the_most_matches_and_the_first_on_a_tie() -> None:
     stats = _stats({(0, 1): 5, (0, 2): 9})
     assert [best_partner(stats, 3, i) for i in range(3)] == [2, 0, 0]
     assert best_partner(_stats({}), 3, 1) == 0
+
+
+def test_only_a_photo_that_matches_no_other_is_checked_for_mirroring(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Two left-out photos that match each other as they are (mic's far pair) are out of
+    reach, not mirrored: only the one that matches no photo is handed to the mirror check."""
+    import sparsesplat.engine.sfm.estimate as estimate
+
+    asked = []
+
+    def spy(image_dir: Path, names: list[str], candidates: list[int], *rest: Any) -> dict:
+        asked.append(candidates)
+        return {}
+
+    monkeypatch.setattr(estimate, "mirrored", spy)
+    names = [f"{i}.png" for i in range(6)]
+    stats = MatchStats(
+        keypoints=[500] * 6,
+        pairs={
+            (0, 1): PairStats(200, 30.0), (1, 2): PairStats(150, 30.0),
+            (3, 4): PairStats(88, 30.0), (0, 5): PairStats(12, 30.0),
+        },
+    )  # fmt: skip
+    placed = SimpleNamespace(world_to_camera={0: None, 1: None, 2: None})
+    reasons = {3: "far", 4: "far", 5: "alone"}
+    estimate._refuse_mirrored(tmp_path, names, names, reasons, placed, stats, 30, 0)  # type: ignore[arg-type]
+    assert asked == [[5]]
+    asked.clear()
+    estimate._refuse_mirrored(tmp_path, names, names, {3: "far", 4: "far"}, placed, stats, 30, 0)  # type: ignore[arg-type]
+    assert asked == []
