@@ -87,8 +87,11 @@ def measure(
         except CameraEstimationError as exc:
             seconds = time.perf_counter() - started  # the photos' writing included
             return {**row, "registered": 0, "seconds": seconds, "outcome": str(exc)}
+    # The photos left out by name (no neighbour within reach) are scored as not registered;
+    # the placed ones against their own dataset poses.
+    placed = [i for i, p in enumerate(result.photos) if p.placed]
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [v.camera.world_to_camera.double().numpy() for v in views]
+    ref = [views[i].camera.world_to_camera.double().numpy() for i in placed]
     errors = rotation_errors_deg(est, ref, align(est, ref))
     return {
         **row,

@@ -33,6 +33,7 @@ from sparsesplat.engine.sfm.check import (
     result_problem,
     rotation_std_by_photo,
 )
+from sparsesplat.engine.sfm.enlarge import enlarge_factor, write_enlarged
 from sparsesplat.engine.sfm.errors import CameraEstimationError
 from sparsesplat.engine.sfm.exif import exif_focal_px
 from sparsesplat.engine.sfm.firmness import firmness
@@ -148,21 +149,27 @@ def estimate_cameras(
         # (its second photo is lost in 3 of 4 tries) and places fox and DTU within 0.6
         # degrees from a guess (docs/experiments/2026-11-30-firm-placement.md).
         for k, attempt in enumerate(attempts):
+            work = Path(tmp) / str(k)
+            factor = enlarge_factor(width, height, attempt.enlarge_to)
+            photo_dir = image_dir
+            if factor > 1:  # COLMAP sees the photos enlarged; its result is scaled back below
+                photo_dir = write_enlarged(image_dir, names, work / "enlarged", factor)
+            used = prior.scaled(factor)
             try:
-                rec, stats = run_colmap(
-                    image_dir, names, prior, attempt, Path(tmp) / str(k), threads, seed
-                )
+                rec, stats = run_colmap(photo_dir, names, used, attempt, work, threads, seed)
             except MissingMatchDependency as exc:  # no match extra: SIFT's attempts follow
                 log.warning("learned matching unavailable, trying SIFT: %s", exc)
                 continue
+            if factor > 1:  # every check and the result in the photos' own pixels
+                stats = stats.scaled(1 / factor)
+                rec = None if rec is None else rec.scaled(1 / factor)
             problem = input_problem(shown, stats)
             if problem is not None:  # a blank photo or copies of one view: no setting helps
                 break
             problem = result_problem(shown, stats, rec, attempt.min_inliers)
             if problem is None and rec is not None:
-                database = Path(tmp) / str(k) / "database.db"
                 problem = firmness(
-                    database, image_dir, names, prior, attempt, rec, threads, seed
+                    work / "database.db", photo_dir, names, used, attempt, rec, threads, seed
                 ).problem(shown)
             log.info("camera estimation attempt", extra={"attempt": attempt.name,
                                                          "problem": problem})  # fmt: skip

@@ -21,6 +21,12 @@ from sparsesplat.engine.sfm.learned import load_photo
 
 MATCHER = "xfeat-lighterglue"
 """The matcher that looks for the mirror image's matches (the learned attempt's)."""
+MIN_MATCHES = 30
+"""Fewest consistent matches between a mirror image and a placed photo that count as the
+photo being mirrored, whatever the attempt's own threshold: the learned attempt's
+verification threshold. A few are found by chance on a nearly symmetric object (mic's 8
+paper views: 12 between the flipped photo 7 and photo 3, with the retry's threshold of 12
+the photo was called mirrored); a mirrored photo of the textured test scene gives 1294."""
 RANSAC_MAX_ERROR_PX = 4.0
 """Epipolar distance within which a match agrees with the fundamental matrix (COLMAP's
 two-view verification default)."""
@@ -48,8 +54,11 @@ def mirrored(
     min_inliers: int, seed: int = 0,
 ) -> dict[int, tuple[int, int]]:  # fmt: skip
     """Of the photos ``candidates`` (about to be left out), those whose mirror image matches a
-    placed photo: index -> (that photo, the mirror image's consistent matches). Empty when the
-    learned matcher is not installed (the photo is then left out as unplaceable)."""
+    placed photo (at least ``min_inliers`` and :data:`MIN_MATCHES` consistent matches, and
+    more than twice the photo's own): index -> (that photo, the mirror image's consistent
+    matches). Empty when the learned matcher is not installed (the photo is then left out as
+    unplaceable)."""
+    need = max(min_inliers, MIN_MATCHES)
     found: dict[int, tuple[int, int]] = {}
     try:
         photos = {i: load_photo(image_dir / names[i]) for i in [*candidates, *placed]}
@@ -62,7 +71,7 @@ def mirrored(
                 count = consistent_matches(flipped, flipped_mask, *photos[j], seed)
                 if count > best[1]:
                     best = (j, count)
-            if best[1] >= min_inliers:
+            if best[1] >= need:
                 as_is = consistent_matches(image, mask, *photos[best[0]], seed)
                 if best[1] > 2 * as_is:
                     found[i] = best

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,11 @@ class CameraPrior:
     fixed: bool
     """True when the user gave the intrinsics: bundle adjustment keeps them."""
 
+    def scaled(self, factor: float) -> CameraPrior:
+        """The same camera for photos resized by ``factor`` (pixel units times ``factor``)."""
+        f = factor
+        return CameraPrior(self.fx * f, self.fy * f, self.cx * f, self.cy * f, self.fixed)
+
 
 @dataclass
 class PairStats:
@@ -52,6 +58,11 @@ class MatchStats:
         """Verified matches between photos ``i`` and ``j`` (0 when none)."""
         stats = self.pairs.get((min(i, j), max(i, j)))
         return stats.inliers if stats else 0
+
+    def scaled(self, factor: float) -> MatchStats:
+        """The same statistics with pixel distances times ``factor`` (counts unchanged)."""
+        pairs = {k: PairStats(p.inliers, p.displacement_px * factor) for k, p in self.pairs.items()}
+        return MatchStats(list(self.keypoints), pairs)
 
 
 @dataclass(frozen=True)
@@ -84,6 +95,18 @@ class Reconstruction:
     """Mean reprojection error over all observations."""
     observations: Observed
     """Which photo saw which point where: the bundle adjustment's data."""
+
+    def scaled(self, factor: float) -> Reconstruction:
+        """The same solution in pixels times ``factor`` (intrinsics, observations and
+        reprojection error; poses and points keep their units)."""
+        fx, fy, cx, cy = self.intrinsics
+        seen = self.observations
+        return dataclasses.replace(
+            self,
+            intrinsics=(fx * factor, fy * factor, cx * factor, cy * factor),
+            reprojection_error_px=self.reprojection_error_px * factor,
+            observations=Observed(seen.photo, seen.point, seen.pixels * factor),
+        )
 
     def bundle_problem(self) -> tuple[list[int], BundleProblem]:
         """The placed photos' indices in order, and the solution as a :class:`BundleProblem`
