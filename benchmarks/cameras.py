@@ -136,7 +136,8 @@ def write_training_photos(scene: Any, folder: Path, scale: int = 1) -> list[Path
         pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
         image = Image.fromarray(pixels)
         if scale > 1:
-            image = image.resize((image.width * scale, image.height * scale), Image.Resampling.BICUBIC)
+            size = (image.width * scale, image.height * scale)
+            image = image.resize(size, Image.Resampling.BICUBIC)
         paths.append(folder / f"{i:03d}.png")
         image.save(paths[-1])
     return paths
@@ -309,10 +310,10 @@ def train_comparison(
     dataset = load_scene(folder)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        estimated, figures = with_estimated_cameras(
-            dataset, _estimate(dataset, given, threads, Path(tmp)), by
-        )
-        print(json.dumps({"estimate": figures}), flush=True)
+        estimate = _estimate(dataset, given, threads, Path(tmp))
+        dataset, placed = placed_views(dataset, estimate)
+        estimated, figures = with_estimated_cameras(dataset, estimate, by)
+        print(json.dumps({"estimate": figures, "placed": placed}), flush=True)
         for seed in seeds:
             for run in runs:
                 scene = dataset if run == "dataset" else estimated
@@ -328,7 +329,8 @@ def train_comparison(
                 row = {"cameras": run, "seed": seed,
                        "intrinsics": "given" if given else "estimated",
                        "preset": metrics.get("preset"), "iterations": metrics.get("iterations"),
-                       "test_views": len(scene.test), "seconds": result.seconds,
+                       "train_views": len(scene.train), "test_views": len(scene.test),
+                       "seconds": result.seconds,
                        **{k: metrics.get(k) for k in METRICS},
                        **(figures if run != "dataset" else {})}  # fmt: skip
                 if run == "refined":
@@ -338,6 +340,20 @@ def train_comparison(
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     return rows
+
+
+def placed_views(scene: Any, estimate: Any) -> tuple[Any, list[int]]:
+    """``scene`` with only the training views that ``estimate`` placed (the photos it left
+    out by name dropped), and their indices in the scene's training views: both runs of a
+    comparison then train on the same photos, so that the difference is the cameras'."""
+    import dataclasses
+
+    placed = [i for i, p in enumerate(estimate.photos) if p.placed]
+    if len(placed) == len(scene.train):
+        return scene, placed
+    train = [scene.train[i] for i in placed]
+    indices = [scene.train_indices[i] for i in placed] if scene.train_indices else []
+    return dataclasses.replace(scene, train=train, train_indices=indices), placed
 
 
 METRICS = ("psnr", "ssim", "lpips")

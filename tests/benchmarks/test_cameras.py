@@ -205,13 +205,13 @@ def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyP
     from sparsesplat.engine import datasets
     from sparsesplat.engine.train import run as run_module
 
-    dataset = SimpleNamespace(test=[1, 2], name="dataset")
-    estimated = SimpleNamespace(test=[1, 2], name="estimated")
+    dataset = SimpleNamespace(train=[0, 1, 2], test=[1, 2], name="dataset")
+    estimated = SimpleNamespace(train=[0, 1, 2], test=[1, 2], name="estimated")
     estimates, built = [], []
 
-    def fake_estimate(*args: Any) -> str:
+    def fake_estimate(*args: Any) -> Any:
         estimates.append(args)
-        return "estimate"
+        return SimpleNamespace(photos=[SimpleNamespace(placed=True)] * 3)
 
     def fake_build_run(spec: Any, scene: Any, out_dir: Path) -> Any:
         built.append((spec.overrides["seed"], scene.name, spec.iterations))
@@ -322,3 +322,19 @@ def test_scale_names_the_file_and_is_refused_with_train(
     for argv in (["--scale", "0"], ["--train", "mic", "--scale", "2"]):
         with pytest.raises(SystemExit):
             cameras.main(argv)
+
+
+def test_a_comparison_trains_both_runs_on_the_placed_photos_only() -> None:
+    """mic's 8 views with 4 placed: the dataset's run and the estimate's train on the same 4
+    views (their indices kept), the held-out views untouched."""
+    from sparsesplat.engine.scene import Scene
+
+    scene = dataclasses.replace(make_scene(n_train=5)[0], train_indices=[10, 11, 12, 13, 14])
+    flags = [True, False, True, True, False]
+    estimate = SimpleNamespace(photos=[SimpleNamespace(placed=f) for f in flags])
+    subset, placed = cameras.placed_views(scene, estimate)
+    assert isinstance(subset, Scene) and placed == [0, 2, 3]
+    assert [v.name for v in subset.train] == [scene.train[i].name for i in placed]
+    assert subset.train_indices == [10, 12, 13] and subset.test == scene.test
+    everything = SimpleNamespace(photos=[SimpleNamespace(placed=True)] * 5)
+    assert cameras.placed_views(scene, everything) == (scene, [0, 1, 2, 3, 4])
