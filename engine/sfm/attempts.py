@@ -33,9 +33,10 @@ class Attempt:
     (``MatchSettings.min_side``); None keeps the matcher's default. A lever for measuring how
     firm an estimate is (``benchmarks/cameras.py --match-side``), not a setting to tune."""
     enlarge_to: int | None = None
-    """For COLMAP's SIFT: photos whose longer side is under this many pixels are enlarged by
-    the smallest whole factor that reaches it (:mod:`.enlarge`) before features are found, and
-    the result is brought back to the photos' own pixels; None: the photos as they are."""
+    """For COLMAP's SIFT, when the focal length is known (given or EXIF): photos whose longer
+    side is under this many pixels are enlarged by the smallest whole factor that reaches it
+    (:mod:`.enlarge`) before features are found, and the result is brought back to the
+    photos' own pixels; None: the photos as they are."""
 
 
 ATTEMPTS: tuple[Attempt, ...] = (
@@ -45,10 +46,11 @@ ATTEMPTS: tuple[Attempt, ...] = (
     # 20-45 degrees apart around an object, which SIFT cannot match. Run only with a known
     # focal length (given or EXIF) and the match extra installed.
     Attempt("learned", 0.02 / 3, False, False, False, 30, 1.0, matcher="xfeat-lighterglue"),
-    # Small photos enlarged to 800 px: SIFT's finest scale then finds the detail that makes
-    # mic's 8 paper views (400 px) placeable: 4 of them within 0.4-1.5 degrees (the other 4,
-    # 130-170 degrees from those or matching none, left out by name), where at 400 px this
-    # attempt placed the same 4 up to 7 degrees off (docs/experiments/2026-11-30-mic-enlarged.md).
+    # Small photos enlarged to 800 px (with a known focal length): SIFT's finest scale then
+    # finds the detail that makes mic's 8 paper views (400 px) placeable, 4 of them within
+    # 0.4-1.5 degrees (the other 4, 130-170 degrees from those or matching none, left out by
+    # name), where at 400 px this attempt placed the same 4 up to 7 degrees off
+    # (docs/experiments/2026-11-30-mic-enlarged.md).
     Attempt("more features", 0.002, True, False, True, 12, 0.5, enlarge_to=800),
 )
 """Tried in order until a result places every photo and passes every check (:mod:`.check`).

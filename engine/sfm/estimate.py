@@ -150,7 +150,12 @@ def estimate_cameras(
         # degrees from a guess (docs/experiments/2026-11-30-firm-placement.md).
         for k, attempt in enumerate(attempts):
             work = Path(tmp) / str(k)
-            factor = enlarge_factor(width, height, attempt.enlarge_to)
+            # Enlarged only with a known focal length: from a guess, mic's enlarged retry
+            # put the focal 22 % off with 4 of 8 photos placed 2-4 degrees off, a result that
+            # trained 7 dB below the dataset's cameras and that no check here tells from a
+            # good one (docs/experiments/2026-11-30-mic-enlarged.md).
+            target = attempt.enlarge_to if source != "guess" else None
+            factor = enlarge_factor(width, height, target)
             photo_dir = image_dir
             if factor > 1:  # COLMAP sees the photos enlarged; its result is scaled back below
                 photo_dir = write_enlarged(image_dir, names, work / "enlarged", factor)
