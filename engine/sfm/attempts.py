@@ -32,6 +32,11 @@ class Attempt:
     """With ``matcher``: the size photos are enlarged to before matching
     (``MatchSettings.min_side``); None keeps the matcher's default. A lever for measuring how
     firm an estimate is (``benchmarks/cameras.py --match-side``), not a setting to tune."""
+    partial_from_guess: bool = True
+    """Whether a set with photos left out may be returned from a guessed focal length (no
+    intrinsics, no EXIF). Off for the weakest attempt: its focal length for the placed part
+    of an object capture cannot be checked (mic: 22 % off, see ``_refuse_partial_from_guess``
+    in :mod:`.estimate`)."""
     enlarge_to: int | None = None
     """For COLMAP's SIFT, when the focal length is known (given or EXIF): photos whose longer
     side is under this many pixels are enlarged by the smallest whole factor that reaches it
@@ -43,15 +48,26 @@ ATTEMPTS: tuple[Attempt, ...] = (
     # Measured on the 3 training views of LLFF flower: 478 points, 0.34 px, all registered.
     Attempt("relaxed", 0.02 / 3, False, False, False, 30, 1.0),
     # XFeat + LighterGlue keypoints and matches, verified and mapped by COLMAP: places photos
-    # 20-45 degrees apart around an object, which SIFT cannot match. Run only with a known
-    # focal length (given or EXIF) and the match extra installed.
+    # 20-45 degrees apart around an object, which SIFT cannot match. Runs when the match
+    # extra is installed, from a known or a guessed focal length (the firmness check refuses
+    # the wrong frames a guess once led it to).
     Attempt("learned", 0.02 / 3, False, False, False, 30, 1.0, matcher="xfeat-lighterglue"),
     # Small photos enlarged to 800 px (with a known focal length): SIFT's finest scale then
     # finds the detail that makes mic's 8 paper views (400 px) placeable, 4 of them within
     # 0.4-1.5 degrees (the other 4, 130-170 degrees from those or matching none, left out by
     # name), where at 400 px this attempt placed the same 4 up to 7 degrees off
     # (docs/experiments/2026-11-30-mic-enlarged.md).
-    Attempt("more features", 0.002, True, False, True, 12, 0.5, enlarge_to=800),
+    Attempt(
+        "more features",
+        0.002,
+        True,
+        False,
+        True,
+        12,
+        0.5,
+        partial_from_guess=False,
+        enlarge_to=800,
+    ),
 )
 """Tried in order until a result places every photo and passes every check (:mod:`.check`).
 A third, affine-adapted SIFT with 10 inliers, registered DTU scan24's three views with

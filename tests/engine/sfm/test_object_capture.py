@@ -146,8 +146,9 @@ def test_mics_paper_views_are_placed_in_part_and_the_rest_left_out_by_name(
     # In the photos' own pixels (the estimate ran on 800 px copies): mic's focal at 400 px.
     assert result.cameras.frames[0].fx == pytest.approx(_intrinsics().fx)
     assert result.cameras.frames[0].width == SIZE and result.reprojection_error_px < 1.0
-    # From a guessed focal length the photos are not enlarged (enlarged, the focal came out
-    # 22 % off and the result trained 7 dB low): refused, with the hint to give the focal.
+    # From a guessed focal length: refused, with the hint to give it. (Enlarged, the focal
+    # came out 22 % off and the result trained 7 dB low; at 800 px the photos need no
+    # enlarging and the retry's partial set is refused as such.)
     with pytest.raises(CameraEstimationError, match=r"the focal length was guessed"):
         estimate_cameras(paths, threads=1)
 
