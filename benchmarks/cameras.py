@@ -89,9 +89,9 @@ def measure(
             return {**row, "registered": 0, "seconds": seconds, "outcome": str(exc)}
     # The photos left out by name (no neighbour within reach) are scored as not registered;
     # the placed ones against their own dataset poses.
-    placed = [i for i, p in enumerate(result.photos) if p.placed]
+    placed = placed_views(scene, result)[0].train
     est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [views[i].camera.world_to_camera.double().numpy() for i in placed]
+    ref = [v.camera.world_to_camera.double().numpy() for v in placed]
     errors = rotation_errors_deg(est, ref, align(est, ref))
     return {
         **row,
@@ -129,17 +129,17 @@ def write_training_photos(scene: Any, folder: Path, scale: int = 1) -> list[Path
     the photos a user would upload, enlarged ``scale`` times (bicubic) when it is over 1."""
     from PIL import Image
 
+    from sparsesplat.engine.sfm.enlarge import write_enlarged
+
     if scale < 1:
         raise ValueError(f"scale must be a whole number >= 1, got {scale}")
     paths = []
     for i, view in enumerate(scene.train):
         pixels = (view.image.numpy() * 255 + 0.5).clip(0, 255).astype(np.uint8)
-        image = Image.fromarray(pixels)
-        if scale > 1:
-            size = (image.width * scale, image.height * scale)
-            image = image.resize(size, Image.Resampling.BICUBIC)
         paths.append(folder / f"{i:03d}.png")
-        image.save(paths[-1])
+        Image.fromarray(pixels).save(paths[-1])
+    if scale > 1:  # the estimate's own enlarging, in place
+        write_enlarged(folder, [p.name for p in paths], folder, scale)
     return paths
 
 
