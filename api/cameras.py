@@ -272,6 +272,11 @@ class CameraFrame(StrictModel):
     random initialisation fills. Default: the file's ``near``."""
     far: float | None = Field(default=None, gt=0, allow_inf_nan=False)
     """Optional farthest depth of the scene seen by this camera; default: the file's ``far``."""
+    rotation_std_deg: float | None = Field(default=None, ge=0, allow_inf_nan=False)
+    """Optional uncertainty of this camera's orientation relative to the other cameras (one
+    standard deviation, degrees), as estimated from the photos (``sparsesplat cameras`` and
+    the service write it). Training refines the poses when a training camera's is at least
+    ``POSE_REFINE_MIN_STD_DEG`` of the presets (0.6°); left out: the pose is taken as exact."""
 
     @model_validator(mode="after")
     def _check_bounds(self) -> CameraFrame:
@@ -418,6 +423,19 @@ def to_world_to_camera_opencv(
     if AxisConvention(convention) == AxisConvention.opengl:
         # World-to-camera in OpenGL axes -> OpenCV axes: negate the camera's y and z rows.
         m = [m[0], [-x for x in m[1]], [-x for x in m[2]], m[3]]
+    return m
+
+
+def from_world_to_camera_opencv(
+    matrix: list[list[float]], convention: AxisConvention | str, pose: PoseDirection | str
+) -> list[list[float]]:
+    """The inverse of :func:`to_world_to_camera_opencv`: an engine pose (world-to-camera,
+    OpenCV axes) as a 4x4 in ``convention`` axes and ``pose`` direction, pure Python."""
+    m = [list(row) for row in matrix]
+    if AxisConvention(convention) == AxisConvention.opengl:  # the same row flip undoes itself
+        m = [m[0], [-x for x in m[1]], [-x for x in m[2]], m[3]]
+    if PoseDirection(pose) == PoseDirection.camera_to_world:
+        m = rigid_inverse(m)
     return m
 
 

@@ -269,7 +269,9 @@ class ModelInfo(BaseModel):
     cameras: list[dict[str, Any]]
     """The uploaded cameras (as in ``cameras.json``, with their split), or those estimated
     from photos uploaded without them (OpenCV camera-to-world, the frame the model was
-    trained in); the i-th one's image is ``GET /v1/jobs/{id}/images/{i}``."""
+    trained in); where training refined the poses (estimated cameras uncertain by 0.6° or
+    more), the training frames' poses as refined, the frame the model is in. The i-th one's
+    image is ``GET /v1/jobs/{id}/images/{i}``."""
     background: tuple[float, float, float] | None = None
     """Background colour (RGB in [0, 1]) the model was trained and renders with."""
     disk_bytes: int | None = None

@@ -17,20 +17,22 @@ the matcher's default (the result goes to ``cameras-match-side-PX.json``): an es
 moves by degrees when only this changes is not pinned down by its photos, whatever its
 orientation spread says.
 
-``--train SCENE [--iterations N] [--given] [--seeds N ...]`` instead trains the scene with its
-preset, once per seed (``--seeds``, default 0) for each run: from the dataset's training
-cameras, and from the estimated ones (with the dataset's intrinsics when ``--given``) brought
-into the dataset's frame by a similarity alignment, and compares the held-out PSNR/SSIM/LPIPS
-on the dataset's held-out views and protocol (DTU's object masks included). The cameras are
-estimated once; the seed only changes the training. With more than one seed it also reports
-each run's mean metrics over the seeds and, per seed and on average, each run's PSNR minus
-the dataset run's. The alignment (``--align``) is fitted on the scene by default: the
-dataset's training cameras see the estimate's triangulated matches where the estimated
-cameras see them, so that the held-out cameras see the scene where the dataset has it;
-``--align cameras`` fits the training cameras' rotations and centres instead (the rotation
-errors of both are reported). The results go to
-``bench-results/cameras-train-SCENE-MODE.json`` (``-seeds-1-2`` appended unless the seeds are
-just 0, so that runs of other seeds do not overwrite it).
+``--train SCENE [--iterations N] [--given] [--seeds N ...] [--views N]`` instead trains the
+scene with its preset (on N training views when ``--views`` is given), once per seed
+(``--seeds``, default 0) for each run: from the dataset's training cameras, and from the
+estimated ones (with the dataset's intrinsics when ``--given``) brought into the dataset's
+frame by a similarity alignment: as the default recipe trains them (``estimated``: refined
+during training when the estimate is uncertain, ``presets.pose_recipe``), held as estimated
+(``fixed``) and refined (``refined``), and compares the held-out PSNR/SSIM/LPIPS on the
+dataset's held-out views and protocol (DTU's object masks included). The cameras are estimated
+once; the seed only changes the training. With more than one seed it also reports each run's
+mean metrics over the seeds and, per seed and on average, each run's PSNR minus the dataset
+run's. The alignment (``--align``) is fitted on the scene by default: the dataset's training
+cameras see the estimate's triangulated matches where the estimated cameras see them, so that
+the held-out cameras see the scene where the dataset has it; ``--align cameras`` fits the
+training cameras' rotations and centres instead (the rotation errors of both are reported). The
+results go to ``bench-results/cameras-train-SCENE-MODE.json`` (``-seeds-1-2`` appended unless
+the seeds are just 0, so that runs of other seeds do not overwrite it).
 """
 
 from __future__ import annotations
@@ -230,7 +232,9 @@ def with_estimated_cameras(
     dataset's frame by a similarity alignment, and the estimate's sparse points likewise;
     everything else (held-out cameras, masks, bounds, format) is the dataset's. A run on it
     differs from one on ``scene`` only by the estimation's errors: the poses' residual after
-    the alignment and, unless given, the intrinsics.
+    the alignment and, unless given, the intrinsics; and, as from an uploaded estimate, the
+    estimate's orientation uncertainty (``Scene.pose_std_deg``), which decides whether the
+    default recipe refines the poses.
 
     ``by``: ``"scene"`` (:func:`scene_alignment`, what the held-out views see: the object where
     the dataset has it) or ``"cameras"`` (``engine.sfm.align.align``: the rotations and
@@ -276,12 +280,22 @@ def with_estimated_cameras(
         cameras_median_deg=float(np.median(cam_errors)), cameras_max_deg=float(np.max(cam_errors)),
         focal_px=float(estimate.cameras.frames[0].fx),
     )  # fmt: skip
-    return dataclasses.replace(scene, train=train, sparse_points=sparse), figures
+    spreads = [
+        f.rotation_std_deg for f in estimate.cameras.frames if f.rotation_std_deg is not None
+    ]
+    pose_std = max(spreads) if spreads else None  # as the folder loader reads cameras.json
+    if pose_std is not None:
+        figures["pose_std_deg"] = pose_std
+    return dataclasses.replace(
+        scene, train=train, sparse_points=sparse, pose_std_deg=pose_std
+    ), figures
 
 
-RUNS = ("dataset", "estimated", "refined")
-"""The runs of a training comparison: from the dataset's cameras, from the estimated ones, and
-from the estimated ones refined during training (``poses.enabled``)."""
+RUNS = ("dataset", "estimated", "fixed", "refined")
+"""The runs of a training comparison: from the dataset's cameras; from the estimated ones as the
+default recipe trains them (their poses refined when the estimate is uncertain,
+``presets.pose_recipe``); from the estimated ones held as estimated (``poses.enabled`` off); and
+refined during training (``poses.enabled`` on)."""
 
 
 def train_comparison(
@@ -292,6 +306,7 @@ def train_comparison(
     runs: tuple[str, ...] = RUNS,
     by: str = "scene",
     seeds: Sequence[int] = (0,),
+    views: int | None = None,
 ) -> list[dict[str, Any]]:
     """Held-out metrics of the same run (the scene's preset, once per seed of ``seeds``; each
     row names its ``seed``) from the dataset's and from the estimated training cameras
@@ -300,14 +315,16 @@ def train_comparison(
     (DTU's object masks included). A refined run is scored twice: at the held-out cameras as
     the dataset gives them (its first camera fixed the frame), and at those cameras mapped by
     the similarity that aligns its refined training cameras to the dataset's (``realigned``).
-    ``by``: how the estimate is aligned to the dataset (:func:`with_estimated_cameras`)."""
+    ``by``: how the estimate is aligned to the dataset (:func:`with_estimated_cameras`);
+    ``views``: training views (the dataset loader's choice, e.g. DTU's paper list in order;
+    None: the paper's count)."""
     import torch
 
     from sparsesplat.engine.datasets import load_scene
     from sparsesplat.engine.train.run import RunSpec, build_run
 
     torch.set_num_threads(threads)
-    dataset = load_scene(folder)
+    dataset = load_scene(folder, views)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         estimate = _estimate(dataset, given, threads, Path(tmp))
@@ -318,8 +335,8 @@ def train_comparison(
             for run in runs:
                 scene = dataset if run == "dataset" else estimated
                 overrides: dict[str, Any] = {"seed": seed, "threads": threads}
-                if run == "refined":
-                    overrides["poses.enabled"] = True
+                if run in ("fixed", "refined"):
+                    overrides["poses.enabled"] = run == "refined"
                 # The one run recipe (the CLI's and the service's), its preset from the format.
                 spec = RunSpec(None, overrides, iterations)
                 out_dir = Path(tmp) / f"{run}-seed{seed}"
@@ -333,7 +350,7 @@ def train_comparison(
                        "seconds": result.seconds,
                        **{k: metrics.get(k) for k in METRICS},
                        **(figures if run != "dataset" else {})}  # fmt: skip
-                if run == "refined":
+                if trainer.poses is not None:  # refined: scored at its own cameras too
                     row["pose_refinement"] = metrics.get("pose_refinement")
                     row["refined_deg"] = refined_errors(trainer, dataset, by)
                     row["realigned"] = realigned_metrics(trainer, dataset, by)
@@ -367,11 +384,20 @@ def _mean(values: Sequence[float | None]) -> float | None:
     return float(np.mean([float(v) for v in values if v is not None]))
 
 
+def _scored_psnr(row: dict[str, Any]) -> float | None:
+    """A row's held-out PSNR in its model's own frame: ``realigned`` where its poses were
+    refined, else as scored."""
+    realigned = row.get("realigned")
+    return realigned.get("psnr") if realigned else row.get("psnr")
+
+
 def seed_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Over the seeds of :func:`train_comparison`'s ``rows``: per run kind (``means``), the
     seeds and the mean of each held-out metric; and per run kind other than ``dataset``
     (``psnr_gap``, when there are dataset rows), its PSNR minus the dataset run's of the same
-    seed, per seed (``per_seed``, seed -> dB, only the seeds both ran) and their ``mean``."""
+    seed, per seed (``per_seed``, seed -> dB, only the seeds both ran) and their ``mean``. A
+    run whose poses were refined counts its ``realigned`` PSNR (scored at the held-out cameras
+    placed by its own refined training cameras, the frame its model is in)."""
     by_run: dict[str, dict[int, dict[str, Any]]] = {}
     for row in rows:
         by_run.setdefault(row["cameras"], {})[row["seed"]] = row
@@ -386,9 +412,9 @@ def seed_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         if run == "dataset" or not reference:
             continue
         per_seed = {
-            seed: float(row["psnr"]) - float(reference[seed]["psnr"])
+            seed: scored - float(reference[seed]["psnr"])
             for seed, row in sorted(of_seed.items())
-            if seed in reference and row.get("psnr") is not None
+            if seed in reference and (scored := _scored_psnr(row)) is not None
             and reference[seed].get("psnr") is not None
         }  # fmt: skip
         gaps[run] = {"per_seed": per_seed, "mean": _mean(list(per_seed.values()))}
@@ -413,11 +439,13 @@ def format_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def results_name(scene: str, given: bool, seeds: Sequence[int]) -> str:
-    """The result file's name: ``cameras-train-SCENE-MODE.json``, with the seeds appended
-    (``-seeds-1-2``) unless they are just 0 (the name before seeds could be chosen)."""
+def results_name(scene: str, given: bool, seeds: Sequence[int], views: int | None = None) -> str:
+    """The result file's name: ``cameras-train-SCENE-MODE.json``, with the training views
+    (``-views-5``) unless the paper's and the seeds (``-seeds-1-2``) unless they are just 0
+    appended (the name before either could be chosen)."""
     mode = "given" if given else "estimated"
-    suffix = "" if list(seeds) == [0] else "-seeds-" + "-".join(str(s) for s in seeds)
+    suffix = "" if views is None else f"-views-{views}"
+    suffix += "" if list(seeds) == [0] else "-seeds-" + "-".join(str(s) for s in seeds)
     return f"cameras-train-{scene}-{mode}{suffix}.json"
 
 
@@ -504,6 +532,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --train: train each run once per seed (default 0)",
     )  # fmt: skip
     parser.add_argument(
+        "--views", type=int, default=None, metavar="N",
+        help="with --train: N training views (the loader's choice; default: the paper's)",
+    )  # fmt: skip
+    parser.add_argument(
         "--match-side", type=int, default=None, metavar="PX",
         help="without --train: the learned attempt matches photos enlarged to PX pixels "
         "(default: the matcher's own size)",
@@ -524,20 +556,22 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds: each seed once, got {args.seeds}")
     if args.train and args.match_side is not None:
         parser.error("--match-side goes without --train")
+    if args.views is not None and (not args.train or args.views < 3):
+        parser.error("--views takes a whole number >= 3, with --train")
     if args.scale < 1 or (args.train and args.scale != 1):
         parser.error("--scale takes a whole number >= 1, without --train")
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
             root / SCENES[args.train], args.iterations, args.threads, args.given,
-            tuple(args.runs), args.align, args.seeds,
+            tuple(args.runs), args.align, args.seeds, args.views,
         )  # fmt: skip
         result: dict[str, Any] = {"machine": machine_info(), "seeds": args.seeds, "rows": rows}
         if len(args.seeds) > 1:
             result["summary"] = seed_summary(rows)
             print(json.dumps({"summary": result["summary"]}), flush=True)
             print(format_summary(result["summary"]), flush=True)
-        out = results_dir() / results_name(args.train, args.given, args.seeds)
+        out = results_dir() / results_name(args.train, args.given, args.seeds, args.views)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1))
         print(f"written: {out}")

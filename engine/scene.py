@@ -57,6 +57,10 @@ class Scene:
     """(N, 3) points and (N, 3) RGB colours in [0, 1] from structure from motion, where the
     cameras were estimated from the photos (``engine/sfm``); the trainer's ``init='sparse'``
     starts from them."""
+    pose_std_deg: float | None = None
+    """The largest orientation uncertainty among the training cameras (one standard
+    deviation, degrees; ``rotation_std_deg`` of ``cameras.json``, written where the cameras
+    were estimated from the photos); None where no frame gives one."""
     render_path: list[Camera] = field(default_factory=list)
     """The format's own novel-view camera path (LLFF: the reference's 180-frame spiral through
     every image's pose, ``engine/camera_path.py``); empty where the format defines none."""

@@ -113,6 +113,8 @@ def _train(
     def planned(plan: RunPlan) -> None:
         if plan.reason is not None:
             log.info("preset chosen", extra={"preset": plan.config.preset, "reason": plan.reason})
+        for note in plan.notes:  # the result's metrics say it too (pose_refinement)
+            log.info("run note", extra={"job_id": claim.job_id, "note": note})
         beat.set_preset(plan.config.preset, plan.reason)
         _carry_progress(store, claim.job_id, beat, plan.config.preset, plan.reason)
         if plan.config.uses_depth:
@@ -178,17 +180,23 @@ def _train(
     for warning in result.metrics.get("warnings", []):
         store.add_warning(claim.job_id, public_message(str(warning), storage, claim.job_id))
     metrics = {k: _finite(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
+    outcome: dict[str, Any] = {
+        "metrics": metrics,
+        "n_gaussians": result.n_gaussians,
+        "iterations": result.iteration,
+        "background": [float(c) for c in trainer.background.tolist()],
+        "disk_bytes": disk_bytes,
+    }
+    if trainer.poses is not None:  # the model is in the refined cameras' frame: serve those
+        from sparsesplat.engine.datasets.trained_cameras import folder_trained_cameras
+
+        upload = storage.upload_dir(claim.job_id)
+        outcome["cameras"] = folder_trained_cameras(upload, scene, trainer.training_cameras())
     return Outcome(
         JobState.succeeded,
         f"trained {result.iteration} iterations in {result.seconds:.0f} s"
         + (f" of a {budget:g} s budget" if budget is not None else ""),
-        {
-            "metrics": metrics,
-            "n_gaussians": result.n_gaussians,
-            "iterations": result.iteration,
-            "background": [float(c) for c in trainer.background.tolist()],
-            "disk_bytes": disk_bytes,
-        },
+        outcome,
     )
 
 

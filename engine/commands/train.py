@@ -5,10 +5,12 @@ No torch import at module level (the CLI imports this module to build its parser
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any, TextIO, get_args
 
 from sparsesplat.api.names import PresetName
@@ -346,6 +348,10 @@ def _run(args: argparse.Namespace) -> int:
         emit({"kind": "preset", "preset": config.preset, "reason": reason})
         if talk:
             print(f"preset {config.preset}: {reason}", file=sys.stderr, flush=True)
+        for note in plan.notes:
+            emit({"kind": "note", "note": note})
+            if talk:
+                print(note, file=sys.stderr, flush=True)
         if config.time_budget_s is not None:
             budget = config.time_budget_s
             emit({"kind": "budget", "seconds": budget, "schedule_iterations": config.iterations})
@@ -391,6 +397,17 @@ def _run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close(trainer.iteration)
     artifacts = {k: str(v) for k, v in result.artifacts.items()}
+    if trainer.poses is not None and scene.format == "folder":
+        # The model is in the refined cameras' frame: write them beside it.
+        from sparsesplat.engine.datasets.trained_cameras import (
+            TRAINED_CAMERAS_FILE,
+            folder_trained_cameras,
+        )
+
+        document = folder_trained_cameras(Path(args.scene), scene, trainer.training_cameras())
+        path = Path(args.out) / TRAINED_CAMERAS_FILE
+        path.write_text(json.dumps(document, indent=1))
+        artifacts["cameras"] = str(path)
     for warning in result.metrics.get("warnings", []):
         emit({"kind": "warning", "message": warning})
         if not args.json:

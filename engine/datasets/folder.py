@@ -209,4 +209,12 @@ def load_folder(root: Path, views: int | None = None, downscale: int = 1) -> Sce
     return split_scene(
         root, "folder", (train, test, background), (near, far), box, (train_idx, test_idx),
         sparse_points=read_sparse_points(root),
+        pose_std_deg=_pose_std_deg([frames[i] for i in train_idx]),
     )  # fmt: skip
+
+
+def _pose_std_deg(frames: list[CameraFrame]) -> float | None:
+    """The largest ``rotation_std_deg`` of ``frames`` (the training frames); None when none
+    gives one."""
+    given = [f.rotation_std_deg for f in frames if f.rotation_std_deg is not None]
+    return max(given) if given else None

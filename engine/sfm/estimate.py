@@ -203,6 +203,7 @@ def estimate_cameras(
         log.warning("photo left out of the camera estimate: %s", reason)
     frame = normalise(rec)
     fx, fy, cx, cy = rec.intrinsics
+    photos = photo_report(shown, stats, rec, reasons)
     frames = [
         CameraFrame(
             image=name,
@@ -213,6 +214,7 @@ def estimate_cameras(
             cy=cy,
             width=width,
             height=height,
+            rotation_std_deg=photos[i].rotation_std_deg,
         )
         for i, name in enumerate(names)
         if i in frame.world_to_camera
@@ -234,7 +236,7 @@ def estimate_cameras(
         reprojection_error_px=rec.reprojection_error_px,
         triangulation_angle_deg=median_triangulation_angle_deg(rec),
         focal_source=source,
-        photos=photo_report(shown, stats, rec, reasons),
+        photos=photos,
     )
 
 

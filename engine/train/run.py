@@ -22,7 +22,7 @@ from sparsesplat.engine.scene import Scene
 from sparsesplat.engine.threads import torch_threads
 from sparsesplat.engine.train.config import ConfigError, TrainConfig
 from sparsesplat.engine.train.config.overrides import resolve
-from sparsesplat.engine.train.config.presets import choose_preset, preset
+from sparsesplat.engine.train.config.presets import choose_preset, pose_recipe, preset
 from sparsesplat.engine.train.loop.progress import ProgressCallback
 from sparsesplat.engine.train.loop.trainer import Trainer
 
@@ -51,6 +51,9 @@ class RunPlan:
     """The validated training config."""
     reason: str | None
     """Why its preset was chosen from the scene; None when the spec named it."""
+    notes: tuple[str, ...] = ()
+    """What the scene's facts add to the preset whichever it is, one phrase each (the
+    training poses refined: ``presets.pose_recipe``)."""
 
 
 @dataclass
@@ -67,9 +70,10 @@ class PreparedRun:
 
 def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
     """The config ``spec`` asks for on ``scene``: the preset (chosen from ``scene`` when the
-    spec names none) with its recipe for the training cameras' layout, then the spec's
-    overrides. ``scene`` None: no layout recipe (the trainer resolves the preset's ``auto``
-    fields when it starts). :class:`ConfigError` names a bad preset, field, value or length."""
+    spec names none) with its recipe for the training cameras' layout and the poses refined
+    when the cameras are uncertain (``presets.pose_recipe``), then the spec's overrides.
+    ``scene`` None: no layout recipe (the trainer resolves the preset's ``auto`` fields when
+    it starts). :class:`ConfigError` names a bad preset, field, value or length."""
     overrides = dict(spec.overrides)
     iterations = spec.iterations
     lengths = [k for k in overrides if resolve(k) == "iterations"]
@@ -97,8 +101,11 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
         raise ConfigError("no preset named and no scene to choose one from")
     if budget is not None:  # as an override, it replaces the default length's time limit
         overrides["time_budget_s"] = float(budget)
-    config = preset(name, iterations=iterations, layout=training_layout(scene), **overrides)
-    return RunPlan(config, reason)
+    refine, note = pose_recipe(None if scene is None else scene.pose_std_deg, overrides)
+    config = preset(
+        name, iterations=iterations, layout=training_layout(scene), **refine, **overrides
+    )
+    return RunPlan(config, reason, () if note is None else (note,))
 
 
 def training_layout(scene: Scene | None) -> str | None:

@@ -31,11 +31,14 @@ EXPORTS = {
 
 @router.get("/{model_id}", response_model=ModelInfo, summary="Describe a trained model")
 def get_model(model_id: str, service: ServiceDep, owner: OwnerDep) -> ModelInfo:
-    """Size, final held-out metrics, exports and the cameras it was trained with."""
+    """Size, final held-out metrics, exports and the cameras it was trained with (the upload's,
+    or as refined in training when the training poses were refined)."""
     job = own_model(service, owner, model_id)
     result = service.jobs.result(model_id) or {}
     storage = service.storage
-    document = json.loads(storage.fetch(storage.upload_dir(model_id) / "cameras.json").read_text())
+    document = result.get("cameras") or json.loads(
+        storage.fetch(storage.upload_dir(model_id) / "cameras.json").read_text()
+    )
     cameras = [
         {**frame, "convention": document["convention"], "pose": document["pose"]}
         for frame in document["frames"]

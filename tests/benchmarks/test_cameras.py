@@ -44,7 +44,8 @@ def _estimate(scene, rotation: np.ndarray, scale: float, shift: np.ndarray, tilt
         est[:3, :3], est[:3, 3] = r_est, -r_est @ c_est
         cam = view.camera
         frames.append(SimpleNamespace(matrix=np.linalg.inv(est).tolist(), fx=cam.fx * 1.1,
-                                      fy=cam.fy * 1.1, cx=cam.cx, cy=cam.cy))  # fmt: skip
+                                      fy=cam.fy * 1.1, cx=cam.cx, cy=cam.cy,
+                                      rotation_std_deg=None if i == 0 else 0.25 * i))  # fmt: skip
     points = np.array([[0.1, 0.2, 0.3], [-0.2, 0.0, 0.5]])
     colours = np.full((2, 3), 0.5, dtype=np.float32)
     est_points = (scale * points @ rotation.T + shift).astype(np.float32)
@@ -66,6 +67,8 @@ def test_an_exact_estimate_in_another_frame_maps_back_onto_the_dataset_cameras()
     assert mapped.format == scene.format and mapped.near == scene.near
     assert mapped.sparse_points is not None
     assert np.allclose(mapped.sparse_points[0].numpy(), points, atol=1e-5)
+    # The estimate's largest orientation spread, as the folder loader reads cameras.json.
+    assert mapped.pose_std_deg == 0.25 * (len(scene.train) - 1) == figures["pose_std_deg"]
 
 
 def test_a_planted_rotation_error_survives_the_mapping() -> None:
@@ -165,9 +168,18 @@ def test_the_seed_summary_averages_each_run_and_the_gap_per_seed() -> None:
     assert "mean -1.35 dB" in cameras.format_summary(summary)
 
 
+def test_a_refined_run_counts_its_realigned_psnr_in_the_gap() -> None:
+    """A run whose poses were refined is scored in its own frame (``realigned``); its raw
+    PSNR, at held-out cameras placed for the unrefined ones, is not its gap."""
+    refined = {**_row("estimated", 0, 14.0, 0.5, 0.4), "realigned": {"psnr": 16.8}}
+    summary = seed_summary([_row("dataset", 0, 17.0, 0.6, 0.37), refined])
+    assert summary["psnr_gap"]["estimated"]["per_seed"] == {0: pytest.approx(-0.2)}
+
+
 @pytest.mark.parametrize(("seeds", "name"), [
     ([], "cameras-train-juicebox_table-given.json"),
     (["--seeds", "1", "2"], "cameras-train-juicebox_table-given-seeds-1-2.json"),
+    (["--views", "5"], "cameras-train-juicebox_table-given-views-5.json"),
 ])  # fmt: skip
 def test_main_hands_the_seeds_to_the_comparison_and_records_them(
     seeds: list[str], name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -177,8 +189,9 @@ def test_main_hands_the_seeds_to_the_comparison_and_records_them(
     calls = []
 
     def fake(folder: Path, iterations: int | None, threads: int, given: bool,
-             runs: tuple[str, ...], by: str, seeds: list[int]) -> list[dict[str, Any]]:  # fmt: skip
-        calls.append((runs, seeds))
+             runs: tuple[str, ...], by: str, seeds: list[int],
+             views: int | None) -> list[dict[str, Any]]:  # fmt: skip
+        calls.append((runs, seeds, views))
         return [_row(run, s, 17.0 - (run != "dataset"), 0.6, 0.4) for s in seeds for run in runs]
 
     monkeypatch.setattr(cameras, "train_comparison", fake)
@@ -186,8 +199,9 @@ def test_main_hands_the_seeds_to_the_comparison_and_records_them(
     argv = ["--data", str(tmp_path), "--train", "juicebox_table", "--given",
             "--runs", "dataset", "estimated", *seeds]  # fmt: skip
     assert cameras.main(argv) == 0
-    expected = [int(s) for s in seeds[1:]] or [0]
-    assert calls == [(("dataset", "estimated"), expected)]
+    expected = [int(s) for s in seeds[1:]] if seeds[:1] == ["--seeds"] else [0]
+    views = int(seeds[1]) if seeds[:1] == ["--views"] else None
+    assert calls == [(("dataset", "estimated"), expected, views)]
     written = json.loads((tmp_path / name).read_text())
     assert written["seeds"] == expected
     assert [(r["cameras"], r["seed"]) for r in written["rows"]] == [
@@ -217,9 +231,9 @@ def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyP
         built.append((spec.overrides["seed"], scene.name, spec.iterations))
         metrics = {"psnr": 10.0 + spec.overrides["seed"], "ssim": 0.5, "lpips": 0.3}
         result = SimpleNamespace(metrics=metrics, seconds=1.0)
-        return SimpleNamespace(trainer=SimpleNamespace(run=lambda: result))
+        return SimpleNamespace(trainer=SimpleNamespace(run=lambda: result, poses=None))
 
-    monkeypatch.setattr(datasets, "load_scene", lambda folder: dataset)
+    monkeypatch.setattr(datasets, "load_scene", lambda folder, views: dataset)
     monkeypatch.setattr(cameras, "_estimate", fake_estimate)
     monkeypatch.setattr(cameras, "with_estimated_cameras", lambda *a: (estimated, {"x": 1.0}))
     monkeypatch.setattr(run_module, "build_run", fake_build_run)

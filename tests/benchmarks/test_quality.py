@@ -52,7 +52,7 @@ def test_resume_skips_finished_and_reuses_identical_configs(
         fmt = "llff" if path.parent.name == "llff" else "dtu"
         # training views need cameras: the bench reads their layout for the preset's recipe
         train = [SimpleNamespace(camera=c) for c in make_cameras(3, 8, 6)]
-        return SimpleNamespace(name=path.name, format=fmt, train=train)
+        return SimpleNamespace(name=path.name, format=fmt, train=train, pose_std_deg=None)
 
     def fake_entry(scene_path: Path, scene: Any, variant: str, spec: Any, *rest: Any) -> dict:
         calls.append((scene.name, variant))

@@ -98,6 +98,11 @@ def test_written_folder_loads_with_its_points(estimate: CameraEstimate, three, t
     assert scene.near == pytest.approx(estimate.cameras.near)
     assert scene.sparse_points is not None
     assert np.array_equal(scene.sparse_points[0].numpy(), estimate.points)
+    # Each frame carries its photo's orientation spread; the scene keeps the largest.
+    spreads = [p.rotation_std_deg for p in estimate.photos]
+    assert [f.rotation_std_deg for f in estimate.cameras.frames] == spreads
+    assert all(s is not None and s > 0 for s in spreads)
+    assert scene.pose_std_deg == max(spreads)  # type: ignore[type-var]
 
 
 def test_one_photo_is_refused(three) -> None:
