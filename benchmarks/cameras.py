@@ -53,6 +53,7 @@ from benchmarks.common import (
     results_dir,
 )
 from benchmarks.quality import default_data_root
+from sparsesplat.engine.commands.common import add_set_option
 
 SCENES = SHARED_SCENES
 """Scene name -> folder under the shared data root."""
@@ -307,6 +308,7 @@ def train_comparison(
     by: str = "scene",
     seeds: Sequence[int] = (0,),
     views: int | None = None,
+    settings: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Held-out metrics of the same run (the scene's preset, once per seed of ``seeds``; each
     row names its ``seed``) from the dataset's and from the estimated training cameras
@@ -317,7 +319,8 @@ def train_comparison(
     the similarity that aligns its refined training cameras to the dataset's (``realigned``).
     ``by``: how the estimate is aligned to the dataset (:func:`with_estimated_cameras`);
     ``views``: training views (the dataset loader's choice, e.g. DTU's paper list in order;
-    None: the paper's count)."""
+    None: the paper's count); ``settings``: training settings by dotted name for every run
+    (``--set``; the run's own ``poses.enabled``, seed and threads applied after them)."""
     import torch
 
     from sparsesplat.engine.datasets import load_scene
@@ -334,7 +337,7 @@ def train_comparison(
         for seed in seeds:
             for run in runs:
                 scene = dataset if run == "dataset" else estimated
-                overrides: dict[str, Any] = {"seed": seed, "threads": threads}
+                overrides: dict[str, Any] = {**(settings or {}), "seed": seed, "threads": threads}
                 if run in ("fixed", "refined"):
                     overrides["poses.enabled"] = run == "refined"
                 # The one run recipe (the CLI's and the service's), its preset from the format.
@@ -439,12 +442,16 @@ def format_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def results_name(scene: str, given: bool, seeds: Sequence[int], views: int | None = None) -> str:
-    """The result file's name: ``cameras-train-SCENE-MODE.json``, with the training views
-    (``-views-5``) unless the paper's and the seeds (``-seeds-1-2``) unless they are just 0
-    appended (the name before either could be chosen)."""
+def results_name(
+    scene: str, given: bool, seeds: Sequence[int], views: int | None = None, sets: bool = False
+) -> str:
+    """The result file's name: ``cameras-train-SCENE-MODE.json``, with ``-set`` when training
+    settings were given (``--set``; the file records them), the training views (``-views-5``)
+    unless the paper's and the seeds (``-seeds-1-2``) unless they are just 0 appended (the
+    name before any could be chosen)."""
     mode = "given" if given else "estimated"
-    suffix = "" if views is None else f"-views-{views}"
+    suffix = "-set" if sets else ""
+    suffix += "" if views is None else f"-views-{views}"
     suffix += "" if list(seeds) == [0] else "-seeds-" + "-".join(str(s) for s in seeds)
     return f"cameras-train-{scene}-{mode}{suffix}.json"
 
@@ -535,6 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--views", type=int, default=None, metavar="N",
         help="with --train: N training views (the loader's choice; default: the paper's)",
     )  # fmt: skip
+    add_set_option(parser, "with --train: a training setting for every run (repeatable)")
     parser.add_argument(
         "--match-side", type=int, default=None, metavar="PX",
         help="without --train: the learned attempt matches photos enlarged to PX pixels "
@@ -546,6 +554,21 @@ def build_parser() -> argparse.ArgumentParser:
         "at a larger size; default 1)",
     )  # fmt: skip
     return parser
+
+
+def _settings(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, Any]:
+    """``--set FIELD=JSON`` items as overrides by dotted name (a bad one is a usage error)."""
+    from sparsesplat.engine.errors import ConfigError
+    from sparsesplat.engine.train.config.overrides import parse_override
+
+    settings: dict[str, Any] = {}
+    for item in items:
+        try:
+            key, value = parse_override(item)
+        except ConfigError as exc:
+            parser.error(f"--set {exc}")
+        settings[key] = value
+    return settings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -560,18 +583,25 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--views takes a whole number >= 3, with --train")
     if args.scale < 1 or (args.train and args.scale != 1):
         parser.error("--scale takes a whole number >= 1, without --train")
+    if args.set and not args.train:
+        parser.error("--set goes with --train")
+    settings = _settings(parser, args.set)
     root = args.data or default_data_root()
     if args.train:
         rows = train_comparison(
             root / SCENES[args.train], args.iterations, args.threads, args.given,
-            tuple(args.runs), args.align, args.seeds, args.views,
+            tuple(args.runs), args.align, args.seeds, args.views, settings,
         )  # fmt: skip
         result: dict[str, Any] = {"machine": machine_info(), "seeds": args.seeds, "rows": rows}
+        if settings:
+            result["settings"] = settings
         if len(args.seeds) > 1:
             result["summary"] = seed_summary(rows)
             print(json.dumps({"summary": result["summary"]}), flush=True)
             print(format_summary(result["summary"]), flush=True)
-        out = results_dir() / results_name(args.train, args.given, args.seeds, args.views)
+        out = results_dir() / results_name(
+            args.train, args.given, args.seeds, args.views, bool(settings)
+        )
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1))
         print(f"written: {out}")

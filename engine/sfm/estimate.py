@@ -39,6 +39,7 @@ from sparsesplat.engine.sfm.exif import exif_focal_px
 from sparsesplat.engine.sfm.firmness import firmness
 from sparsesplat.engine.sfm.frame import normalise
 from sparsesplat.engine.sfm.mirror import mirrored
+from sparsesplat.engine.sfm.recheck import recheck
 from sparsesplat.engine.sfm.reconstruct import (
     CameraPrior,
     MatchStats,
@@ -149,6 +150,8 @@ def estimate_cameras(
         # (its second photo is lost in 3 of 4 tries) and places fox and DTU within 0.6
         # degrees from a guess (docs/experiments/2026-11-30-firm-placement.md).
         for k, attempt in enumerate(attempts):
+            if attempt.known_focal_only and source == "guess":
+                continue  # its frames from a guess were wrong, and passed every check
             work = Path(tmp) / str(k)
             # Enlarged only with a known focal length: from a guess, mic's enlarged retry
             # put the focal 22 % off with 4 of 8 photos placed 2-4 degrees off, a result that
@@ -176,6 +179,9 @@ def estimate_cameras(
                 problem = firmness(
                     work / "database.db", photo_dir, names, used, attempt, rec, threads, seed
                 ).problem(shown)
+            if problem is None and rec is not None and attempt.recheck:
+                problem = recheck(photo_dir, names, shown, max(width, height) * factor, used,
+                                  attempt, rec, work / "recheck", threads, seed)  # fmt: skip
             log.info("camera estimation attempt", extra={"attempt": attempt.name,
                                                          "problem": problem})  # fmt: skip
             if problem is None:
@@ -197,8 +203,6 @@ def estimate_cameras(
     if reasons:
         _refuse_mirrored(image_dir, names, shown, reasons, rec, stats, attempts[k].min_inliers,
                          seed)  # fmt: skip
-        if source == "guess" and not attempts[k].partial_from_guess:
-            _refuse_partial_from_guess(shown, reasons)
     for _, reason in sorted(reasons.items()):
         log.warning("photo left out of the camera estimate: %s", reason)
     frame = normalise(rec)
@@ -268,23 +272,6 @@ def _refuse_mirrored(
             f"right): flipped back it shares {count} consistent matches with "
             f"{photo(shown, j)}, as it is it cannot be placed; give the camera's original photo"
         )
-
-
-def _refuse_partial_from_guess(shown: list[str], reasons: dict[int, str]) -> None:
-    """Raise for a set with photos left out whose focal length was guessed, placed by an
-    attempt that may not do so (``Attempt.partial_from_guess``). The placed photos are then
-    the part of an object capture within reach of weak features, and what their focal length
-    comes out at cannot be checked: mic's 8 paper views at 800 px, 4 placed by SIFT's retry,
-    put it 22 % off (rotations 2-4 degrees off, trained 7 dB below the dataset's cameras;
-    starts 0.7x and 1.4x the guess converged to it, and the tries of the firmness check moved
-    the cameras less than a degree), where the learned attempt on 4 neighbouring views of mic
-    put it 1 % off (docs/experiments/2026-11-30-mic-enlarged.md)."""
-    gone = ", ".join(photo(shown, i) for i in sorted(reasons))
-    raise CameraEstimationError(
-        f"cannot estimate the cameras: {len(reasons)} of the {len(shown)} photos share no "
-        f"verified matches with the others that were placed ({gone}), and with photos left "
-        f"out a guessed focal length cannot be checked; {FOCAL_GUESSED}"
-    )
 
 
 def photo_report(

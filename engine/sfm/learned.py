@@ -38,15 +38,19 @@ def load_photo(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def learned_matches(
-    image_dir: Path, names: list[str], method: str, min_side: int | None = None
+    image_dir: Path,
+    names: list[str],
+    method: str,
+    min_side: int | None = None,
+    max_side: int | None = None,
 ) -> MatchSet:
     """Match every pair of the photos ``names`` in ``image_dir`` with the learned matcher
-    ``method`` (one of ``engine.match.METHODS``), alpha channels as masks; ``min_side``: the
-    size small photos are enlarged to first (None: ``MatchSettings``' default)."""
+    ``method`` (one of ``engine.match.METHODS``), alpha channels as masks; ``min_side`` /
+    ``max_side``: the sizes small photos are enlarged to and large ones shrunk to first (None:
+    ``MatchSettings``' defaults)."""
     photos, masks = zip(*(load_photo(image_dir / name) for name in names), strict=True)
-    settings = MatchSettings(method=method)
-    if min_side is not None:
-        settings = MatchSettings(method=method, min_side=min_side)
+    sides = {"min_side": min_side, "max_side": max_side}
+    settings = MatchSettings(method=method, **{k: v for k, v in sides.items() if v is not None})
     return match_images(list(photos), settings, list(masks))
 
 

@@ -161,7 +161,9 @@ def run_colmap(
     if attempt.matcher is not None:
         from sparsesplat.engine.sfm.learned import import_matches, learned_matches
 
-        found = learned_matches(image_dir, names, attempt.matcher, attempt.match_min_side)
+        found = learned_matches(
+            image_dir, names, attempt.matcher, attempt.match_min_side, attempt.match_max_side
+        )
         pairs = import_matches(pycolmap, database, names, found, work_dir)
         pycolmap.verify_matches(database, pairs, options=verification)
     else:

@@ -180,6 +180,7 @@ def test_a_refined_run_counts_its_realigned_psnr_in_the_gap() -> None:
     ([], "cameras-train-juicebox_table-given.json"),
     (["--seeds", "1", "2"], "cameras-train-juicebox_table-given-seeds-1-2.json"),
     (["--views", "5"], "cameras-train-juicebox_table-given-views-5.json"),
+    (["--set", "poses.lr=0.001"], "cameras-train-juicebox_table-given-set.json"),
 ])  # fmt: skip
 def test_main_hands_the_seeds_to_the_comparison_and_records_them(
     seeds: list[str], name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -190,8 +191,8 @@ def test_main_hands_the_seeds_to_the_comparison_and_records_them(
 
     def fake(folder: Path, iterations: int | None, threads: int, given: bool,
              runs: tuple[str, ...], by: str, seeds: list[int],
-             views: int | None) -> list[dict[str, Any]]:  # fmt: skip
-        calls.append((runs, seeds, views))
+             views: int | None, settings: dict[str, Any]) -> list[dict[str, Any]]:  # fmt: skip
+        calls.append((runs, seeds, views, settings))
         return [_row(run, s, 17.0 - (run != "dataset"), 0.6, 0.4) for s in seeds for run in runs]
 
     monkeypatch.setattr(cameras, "train_comparison", fake)
@@ -201,9 +202,11 @@ def test_main_hands_the_seeds_to_the_comparison_and_records_them(
     assert cameras.main(argv) == 0
     expected = [int(s) for s in seeds[1:]] if seeds[:1] == ["--seeds"] else [0]
     views = int(seeds[1]) if seeds[:1] == ["--views"] else None
-    assert calls == [(("dataset", "estimated"), expected, views)]
+    settings = {"poses.lr": 0.001} if seeds[:1] == ["--set"] else {}
+    assert calls == [(("dataset", "estimated"), expected, views, settings)]
     written = json.loads((tmp_path / name).read_text())
     assert written["seeds"] == expected
+    assert written.get("settings", {}) == settings
     assert [(r["cameras"], r["seed"]) for r in written["rows"]] == [
         (run, s) for s in expected for run in ("dataset", "estimated")
     ]
