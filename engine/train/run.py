@@ -102,6 +102,9 @@ def plan_run(spec: RunSpec, scene: Scene | None) -> RunPlan:
     if budget is not None:  # as an override, it replaces the default length's time limit
         overrides["time_budget_s"] = float(budget)
     refine, note = pose_recipe(None if scene is None else scene.pose_std_deg, overrides)
+    # The recipe first, so that an override of one of its settings (poses.lr) wins; resolved
+    # names, so that an old flat spelling of the same field replaces it too.
+    refine = {k: v for k, v in refine.items() if all(resolve(o) != k for o in overrides)}
     config = preset(
         name, iterations=iterations, layout=training_layout(scene), **refine, **overrides
     )

@@ -297,25 +297,35 @@ def layout_recipe(name: str, layout: str | None, overrides: dict[str, Any]) -> d
 POSE_REFINE_MIN_STD_DEG = 0.6
 """Training cameras whose orientations are this uncertain (one standard deviation, degrees, the
 largest ``rotation_std_deg`` of the training frames) are refined during training
-(``poses.enabled``), whatever the preset. Refinement pins a pose to about 0.25-0.3° (mic: from
-0.65° to 0.23° median error; DTU scan24: from 0.12° to 0.29°), so it pays only where the
-estimate is looser than that: mic's four placed views (largest spread 0.78°) trained 2.5 dB
-better with it over seeds 0-2, and DTU scan24's five views (largest spread 0.16°, 0.12° off)
-0.9 dB worse (docs/experiments/2026-11-30-pose-refinement-rule.md). The shared scenes'
-other estimates spread 0.05-0.45°."""
+(``poses.enabled``), whatever the preset. Refinement pins a pose to a few tenths of a degree
+(mic: from 0.65° to 0.18-0.20° median error; DTU scan24: from 0.12° to 0.29°), so it pays only
+where the estimate is looser than that: mic's four placed views (largest spread 0.78°) trained
+2.8 dB better with it over seeds 0-2, and DTU scan24's five views (largest spread 0.16°, 0.12°
+off) 0.9 dB worse (docs/experiments/2026-11-30-pose-refinement-rule.md). The shared scenes'
+other estimates spread 0.03-0.45°."""
+
+
+POSE_RECIPE: dict[str, Any] = {"poses.enabled": True, "poses.lr": 1e-3}
+"""What :func:`pose_recipe` sets for uncertain cameras. A loose estimate needs corrections of
+its own size: at ``poses.lr`` 1e-3, mic's four views trained 0.26 dB better over seeds 0-2
+than at the default 3e-4 (-0.74 against -1.00 dB from the dataset's cameras; the cameras
+ended 0.18-0.20° off instead of 0.23-0.25°). On a tight estimate the larger rate lets the
+cameras drift further (DTU scan24's five views: 0.52° against 0.29°, -2.2 against -0.9 dB),
+which is why the section's own default stays 3e-4 and the rule leaves such estimates alone."""
 
 
 def pose_recipe(
     pose_std_deg: float | None, overrides: dict[str, Any]
 ) -> tuple[dict[str, Any], str | None]:
-    """``poses.enabled`` and why (one phrase) when the training cameras are uncertain by at
+    """:data:`POSE_RECIPE` and why (one phrase) when the training cameras are uncertain by at
     least :data:`POSE_REFINE_MIN_STD_DEG`; nothing when they are not, when no uncertainty is
-    known (cameras taken as exact), or when ``overrides`` name ``poses.enabled``."""
+    known (cameras taken as exact), or when ``overrides`` name ``poses.enabled``. Overrides of
+    the other pose settings apply after it."""
     if pose_std_deg is None or pose_std_deg < POSE_REFINE_MIN_STD_DEG:
         return {}, None
     if any(resolve(key) == "poses.enabled" for key in overrides):
         return {}, None
-    return {"poses.enabled": True}, (
+    return dict(POSE_RECIPE), (
         f"training poses refined: the estimated cameras are uncertain by up to "
         f"{pose_std_deg:.2f}° (refined from {POSE_REFINE_MIN_STD_DEG:g}°; "
         "poses.enabled=false keeps them as given)"

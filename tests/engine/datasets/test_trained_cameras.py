@@ -17,7 +17,8 @@ from sparsesplat.engine.camera import Camera
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.trained_cameras import folder_trained_cameras
 from sparsesplat.engine.errors import SceneError
-from sparsesplat.engine.train.config.presets import POSE_REFINE_MIN_STD_DEG
+from sparsesplat.engine.train.config import PoseConfig
+from sparsesplat.engine.train.config.presets import POSE_RECIPE, POSE_REFINE_MIN_STD_DEG
 from sparsesplat.engine.train.run import RunSpec, plan_run
 from tests.engine.datasets.synthetic import write_folder_scene
 
@@ -90,6 +91,15 @@ def test_uncertain_training_poses_are_refined(
     assert recipe_said is (refined and not overrides)
     if recipe_said:
         assert f"{spread:.2f}°" in plan.notes[0]
+        assert plan.config.poses.lr == POSE_RECIPE["poses.lr"] != PoseConfig().lr
+    else:
+        assert plan.config.poses.lr == PoseConfig().lr
+
+
+def test_an_override_of_a_recipe_setting_wins(tmp_path: Path) -> None:
+    root = _with_spreads(write_folder_scene(tmp_path / "s"), [0.9, None, None, None])
+    plan = plan_run(RunSpec(None, {"poses.lr": 5e-4}), load_scene(root))
+    assert plan.config.poses.enabled and plan.config.poses.lr == 5e-4 and plan.notes
 
 
 def test_the_trained_cameras_file_holds_the_refined_poses(tmp_path: Path) -> None:
