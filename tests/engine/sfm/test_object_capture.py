@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ import pytest
 from PIL import Image, ImageOps
 
 from sparsesplat.api.cameras import Intrinsics
-from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
+from sparsesplat.engine.sfm import CameraEstimate, CameraEstimationError, estimate_cameras
 from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 from tests.conftest import SHARED_DATA
 
@@ -81,15 +82,21 @@ def _intrinsics(size: int = SIZE) -> Intrinsics:
     return Intrinsics(fx=focal, fy=focal, cx=size / 2, cy=size / 2)
 
 
+def _assert_within_bars(result: CameraEstimate, views: Sequence[int]) -> None:
+    """``result``'s cameras against mic's dataset poses of ``views`` (its frames in that
+    order), after a similarity alignment: the issue's median and largest rotation error."""
+    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
+    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in views]
+    errors = rotation_errors_deg(est, ref, align(est, ref))
+    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+
+
 def test_photos_around_an_object_are_placed_within_the_bars(tmp_path: Path) -> None:
     views = _neighbours(4, 50.0)
     paths = [_write(tmp_path, v, f"view_{k}.png") for k, v in enumerate(views)]
     result = estimate_cameras(paths, _intrinsics(), threads=2)
     assert result.attempt == "learned" and len(result.cameras.frames) == 4
-    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in views]
-    errors = rotation_errors_deg(est, ref, align(est, ref))
-    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    _assert_within_bars(result, views)
 
 
 def test_a_photo_out_of_reach_is_left_out_by_name(tmp_path: Path) -> None:
@@ -105,16 +112,11 @@ def test_a_photo_out_of_reach_is_left_out_by_name(tmp_path: Path) -> None:
     assert [p.placed for p in result.photos] == [True, True, True, True, False]
     (far,) = result.left_out
     assert far.reason is not None and "photo 5 (far.png) was left out" in far.reason
-    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in views]
-    errors = rotation_errors_deg(est, ref, align(est, ref))
-    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    _assert_within_bars(result, views)
     guessed = estimate_cameras(paths, threads=2)
     assert guessed.attempt == "learned" and guessed.focal_source == "guess"
     assert [p.placed for p in guessed.photos] == [True, True, True, True, False]
-    est = [np.linalg.inv(np.array(f.matrix)) for f in guessed.cameras.frames]
-    errors = rotation_errors_deg(est, ref, align(est, ref))
-    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    _assert_within_bars(guessed, views)
 
 
 PAPER_VIEWS = (26, 86, 2, 55, 75, 93, 16, 73)
@@ -139,10 +141,7 @@ def test_mics_paper_views_are_placed_in_part_and_the_rest_left_out_by_name(
             assert photo.reason is not None
             assert f"photo {k + 1} ({photo.name}) was left out" in photo.reason
     placed = [v for v, p in zip(PAPER_VIEWS, result.photos, strict=True) if p.placed]
-    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in placed]
-    errors = rotation_errors_deg(est, ref, align(est, ref))
-    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    _assert_within_bars(result, placed)
     # In the photos' own pixels (the estimate ran on 800 px copies): mic's focal at 400 px.
     assert result.cameras.frames[0].fx == pytest.approx(_intrinsics().fx)
     assert result.cameras.frames[0].width == SIZE and result.reprojection_error_px < 1.0
@@ -165,10 +164,7 @@ def test_a_learned_frame_that_moves_with_the_matching_size_is_not_returned(
     paths = [_write(tmp_path, v, f"r_{v}.png") for v in views]
     result = estimate_cameras(paths, _intrinsics(), threads=1)
     assert result.attempt == "more features" and len(result.cameras.frames) == 4
-    est = [np.linalg.inv(np.array(f.matrix)) for f in result.cameras.frames]
-    ref = [_w2c_opencv(_frames()[v]["transform_matrix"]) for v in views]
-    errors = rotation_errors_deg(est, ref, align(est, ref))
-    assert float(np.median(errors)) <= MAX_MEDIAN_DEG and max(errors) <= MAX_DEG, errors
+    _assert_within_bars(result, views)
     with pytest.raises(CameraEstimationError, match=r"moved \d+\.\d° when the photos were matched"):
         estimate_cameras(paths, threads=1)
 
