@@ -426,19 +426,6 @@ def to_world_to_camera_opencv(
     return m
 
 
-def from_world_to_camera_opencv(
-    matrix: list[list[float]], convention: AxisConvention | str, pose: PoseDirection | str
-) -> list[list[float]]:
-    """The inverse of :func:`to_world_to_camera_opencv`: an engine pose (world-to-camera,
-    OpenCV axes) as a 4x4 in ``convention`` axes and ``pose`` direction, pure Python."""
-    m = [list(row) for row in matrix]
-    if AxisConvention(convention) == AxisConvention.opengl:  # the same row flip undoes itself
-        m = [m[0], [-x for x in m[1]], [-x for x in m[2]], m[3]]
-    if PoseDirection(pose) == PoseDirection.camera_to_world:
-        m = rigid_inverse(m)
-    return m
-
-
 def rigid_inverse(m: list[list[float]]) -> list[list[float]]:
     """Inverse of a rigid 4x4 ``[R t; 0 1]`` as ``[R^T, -R^T t; 0 1]`` (pure Python)."""
     rt = [[m[j][i] for j in range(3)] for i in range(3)]

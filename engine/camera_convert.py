@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sparsesplat.api.cameras import AxisConvention, PoseDirection
 from sparsesplat.api.cameras import rigid_inverse as rigid_inverse_lists
 from sparsesplat.api.scenes import dtu as dtu_format
 from sparsesplat.api.scenes import llff as llff_format
@@ -97,6 +98,19 @@ def opengl_c2w_from_w2c(w2c: Tensor) -> np.ndarray:
     """Internal world-to-camera -> OpenGL/Blender camera-to-world (inverse of the above)."""
     m = as_matrix(w2c, (4, 4), "pose")
     return rigid_inverse(m) @ _FLIP_YZ
+
+
+def file_pose_from_w2c(
+    w2c: Tensor, convention: AxisConvention | str, pose: PoseDirection | str
+) -> list[list[float]]:
+    """Internal world-to-camera -> the 4x4 a ``cameras.json`` holds in ``convention`` axes and
+    ``pose`` direction (the inverse of ``api.cameras.to_world_to_camera_opencv``), float64."""
+    m = as_matrix(w2c, (4, 4), "pose")
+    if AxisConvention(convention) == AxisConvention.opengl:
+        m = _FLIP_YZ @ m  # the camera's y and z axes flipped; the flip is its own inverse
+    if PoseDirection(pose) == PoseDirection.camera_to_world:
+        m = rigid_inverse(m)
+    return m.tolist()
 
 
 def w2c_from_opengl_w2c(w2c: Any, source: str = "pose") -> Tensor:

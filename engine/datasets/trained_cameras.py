@@ -11,12 +11,12 @@ intrinsics, held-out frames, bounds) is the upload's.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
-from sparsesplat.api.cameras import CamerasFile, from_world_to_camera_opencv
+from sparsesplat.api.cameras import CamerasFile
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera_convert import file_pose_from_w2c
 from sparsesplat.engine.errors import SceneError
 from sparsesplat.engine.scene import Scene
 
@@ -37,12 +37,10 @@ def trained_cameras(
     for index, camera in zip(train_indices, cameras, strict=True):
         if not 0 <= index < len(frames):
             raise SceneError(f"training frame {index} is not in the cameras file")
-        w2c = camera.world_to_camera.detach().double().cpu().tolist()
-        if not all(math.isfinite(x) for row in w2c for x in row):
+        w2c = camera.world_to_camera.detach().double().cpu()
+        if not bool(w2c.isfinite().all()):
             raise SceneError(f"the trained pose of frame {frames[index]['image']} is not finite")
-        frames[index]["matrix"] = from_world_to_camera_opencv(
-            w2c, document.convention, document.pose
-        )
+        frames[index]["matrix"] = file_pose_from_w2c(w2c, document.convention, document.pose)
         frames[index].pop("rotation_std_deg", None)
     return data
 

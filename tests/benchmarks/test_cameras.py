@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 import torch
 
-from benchmarks import cameras
-from benchmarks.cameras import build_parser, seed_summary, with_estimated_cameras
+from benchmarks import camera_photos, camera_training, cameras
+from benchmarks.camera_training import seed_summary, with_estimated_cameras
+from benchmarks.cameras import build_parser
 from benchmarks.common import RESULTS_DIR_ENV
 from sparsesplat.engine.match.geometry import PinholeArrays, project
 from sparsesplat.engine.match.result import MatchSet
@@ -165,7 +166,7 @@ def test_the_seed_summary_averages_each_run_and_the_gap_per_seed() -> None:
     assert summary["psnr_gap"]["refined"] == {"per_seed": {2: pytest.approx(-1.0)},
                                               "mean": pytest.approx(-1.0)}  # fmt: skip
     assert "dataset" not in summary["psnr_gap"]
-    assert "mean -1.35 dB" in cameras.format_summary(summary)
+    assert "mean -1.35 dB" in camera_training.format_summary(summary)
 
 
 def test_a_refined_run_counts_its_realigned_psnr_in_the_gap() -> None:
@@ -237,10 +238,12 @@ def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyP
         return SimpleNamespace(trainer=SimpleNamespace(run=lambda: result, poses=None))
 
     monkeypatch.setattr(datasets, "load_scene", lambda folder, views: dataset)
-    monkeypatch.setattr(cameras, "_estimate", fake_estimate)
-    monkeypatch.setattr(cameras, "with_estimated_cameras", lambda *a: (estimated, {"x": 1.0}))
+    monkeypatch.setattr(camera_training, "estimate_views", fake_estimate)
+    monkeypatch.setattr(
+        camera_training, "with_estimated_cameras", lambda *a: (estimated, {"x": 1.0})
+    )
     monkeypatch.setattr(run_module, "build_run", fake_build_run)
-    rows = cameras.train_comparison(
+    rows = camera_training.train_comparison(
         Path("scene"), 7, 1, True, ("dataset", "estimated"), "scene", [3, 5]
     )
     assert len(estimates) == 1
@@ -255,8 +258,8 @@ def test_each_seed_trains_each_run_from_one_estimate(monkeypatch: pytest.MonkeyP
 def test_match_side_changes_only_the_learned_attempt() -> None:
     from sparsesplat.engine.sfm.attempts import ATTEMPTS
 
-    assert cameras.attempts_matching_at(None) is ATTEMPTS
-    moved = cameras.attempts_matching_at(640)
+    assert camera_photos.attempts_matching_at(None) is ATTEMPTS
+    moved = camera_photos.attempts_matching_at(640)
     assert [a.name for a in moved] == [a.name for a in ATTEMPTS]
     for old, new in zip(ATTEMPTS, moved, strict=True):
         expected = 640 if old.matcher is not None else None
@@ -305,8 +308,8 @@ def test_photos_are_enlarged_by_the_scale_and_pixel_coordinates_scale_exactly(
     scene = SimpleNamespace(train=[SimpleNamespace(image=ramp)] * 2)
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    (one, _) = cameras.write_training_photos(scene, tmp_path / "a")
-    paths = cameras.write_training_photos(scene, tmp_path / "b", 2)
+    (one, _) = camera_photos.write_training_photos(scene, tmp_path / "a")
+    paths = camera_photos.write_training_photos(scene, tmp_path / "b", 2)
     assert [p.name for p in paths] == ["000.png", "001.png"]
     small = np.asarray(Image.open(one), dtype=np.float64)
     big = np.asarray(Image.open(paths[0]), dtype=np.float64)
@@ -316,7 +319,7 @@ def test_photos_are_enlarged_by_the_scale_and_pixel_coordinates_scale_exactly(
     # 8-bit rounding of both images (0.5 each) and the kernel's overshoot at the clamped ends.
     assert np.abs(means[:, 2:-2] - small[:, 2:-2]).max() <= 1.0
     with pytest.raises(ValueError, match="scale"):
-        cameras.write_training_photos(scene, tmp_path / "b", 0)
+        camera_photos.write_training_photos(scene, tmp_path / "b", 0)
 
 
 def test_scale_names_the_file_and_is_refused_with_train(
@@ -349,9 +352,9 @@ def test_a_comparison_trains_both_runs_on_the_placed_photos_only() -> None:
     scene = dataclasses.replace(make_scene(n_train=5)[0], train_indices=[10, 11, 12, 13, 14])
     flags = [True, False, True, True, False]
     estimate = SimpleNamespace(photos=[SimpleNamespace(placed=f) for f in flags])
-    subset, placed = cameras.placed_views(scene, estimate)
+    subset, placed = camera_photos.placed_views(scene, estimate)
     assert isinstance(subset, Scene) and placed == [0, 2, 3]
     assert [v.name for v in subset.train] == [scene.train[i].name for i in placed]
     assert subset.train_indices == [10, 12, 13] and subset.test == scene.test
     everything = SimpleNamespace(photos=[SimpleNamespace(placed=True)] * 5)
-    assert cameras.placed_views(scene, everything) == (scene, [0, 1, 2, 3, 4])
+    assert camera_photos.placed_views(scene, everything) == (scene, [0, 1, 2, 3, 4])

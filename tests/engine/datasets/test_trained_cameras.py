@@ -12,8 +12,9 @@ from typing import Any
 import pytest
 import torch
 
-from sparsesplat.api.cameras import from_world_to_camera_opencv, to_world_to_camera_opencv
+from sparsesplat.api.cameras import to_world_to_camera_opencv
 from sparsesplat.engine.camera import Camera
+from sparsesplat.engine.camera_convert import file_pose_from_w2c
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.datasets.trained_cameras import folder_trained_cameras
 from sparsesplat.engine.errors import SceneError
@@ -47,8 +48,8 @@ def _turned(camera: Camera, degrees: float) -> Camera:
 def test_the_engine_pose_goes_back_into_the_files_convention(convention: str, pose: str) -> None:
     c, s = math.cos(0.3), math.sin(0.3)
     matrix = [[c, 0.0, s, 1.0], [0.0, 1.0, 0.0, -2.0], [-s, 0.0, c, 0.5], [0.0, 0.0, 0.0, 1.0]]
-    engine = to_world_to_camera_opencv(matrix, convention, pose)
-    back = from_world_to_camera_opencv(engine, convention, pose)
+    engine = torch.tensor(to_world_to_camera_opencv(matrix, convention, pose), dtype=torch.float64)
+    back = file_pose_from_w2c(engine, convention, pose)
     assert all(
         math.isclose(a, b, abs_tol=1e-12)
         for r, q in zip(back, matrix, strict=True)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import sparsesplat.engine.sfm.firmness as firmness_module
-from benchmarks.cameras import write_training_photos
+from benchmarks.camera_photos import write_training_photos
 from sparsesplat.api.cameras import Intrinsics
 from sparsesplat.engine.sfm import CameraEstimationError, estimate_cameras
 from sparsesplat.engine.sfm.attempts import ATTEMPTS
