@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from sparsesplat.engine.match.errors import MatchError
+from sparsesplat.engine.match.settings import resize_factor
 
 TEXTURE_WINDOW = 9
 """Side of the window (pixels, odd) whose grey-level spread decides whether a patch is flat."""
@@ -77,9 +78,7 @@ def prepare(
         raise MatchError(f"photo {index + 1}: {w}x{h} pixels is too small to match")
     if mask is not None and mask.shape != (h, w):
         raise MatchError(f"photo {index + 1}: mask is {mask.shape[::-1]}, the photo {w}x{h}")
-    factor = min(1.0, max_side / max(h, w)) if max_side else 1.0
-    if min_side and max(h, w) < min_side:
-        factor = min_side / max(h, w)
+    factor = resize_factor(max(h, w), min_side, max_side)
     rw, rh = max(16, round(w * factor)), max(16, round(h * factor))
     x = torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None]
     if (rw, rh) != (w, h):

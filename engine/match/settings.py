@@ -25,6 +25,16 @@ of the count: LighterGlue at 4096 keypoints took 7-13 s a pair on one thread aga
 s at 2048 on LLFF (docs/experiments/2026-11-28-matchers.md); the others are linear."""
 
 
+def resize_factor(longer: int, min_side: int, max_side: int) -> float:
+    """How much a photo whose longer side is ``longer`` pixels is scaled before matching:
+    shrunk so that side is at most ``max_side``, or enlarged to ``min_side`` when it is
+    shorter (0 leaves that bound off)."""
+    factor = min(1.0, max_side / longer) if max_side else 1.0
+    if min_side and longer < min_side:
+        factor = min_side / longer
+    return factor
+
+
 @dataclass(frozen=True)
 class MatchSettings:
     """One matcher configuration."""

@@ -24,7 +24,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from sparsesplat.engine.match.settings import MatchSettings
+from sparsesplat.engine.match.settings import MatchSettings, resize_factor
 from sparsesplat.engine.sfm.align import align, rotation_errors_deg
 from sparsesplat.engine.sfm.attempts import Attempt
 from sparsesplat.engine.sfm.reconstruct import CameraPrior, Reconstruction, run_colmap
@@ -40,12 +40,9 @@ SMALLER_SIDE = 800
 
 def working_side(longer: int, min_side: int, max_side: int) -> int:
     """The longer side, in pixels, that the matcher works at for photos whose longer side is
-    ``longer`` (``engine.match.images.prepare``: shrunk to ``max_side``, enlarged to
-    ``min_side``; 0 leaves that bound off)."""
-    factor = min(1.0, max_side / longer) if max_side else 1.0
-    if min_side and longer < min_side:
-        factor = min_side / longer
-    return round(longer * factor)
+    ``longer`` (``engine.match.settings.resize_factor``, as ``engine.match.images.prepare``
+    resizes them)."""
+    return round(longer * resize_factor(longer, min_side, max_side))
 
 
 def second_size(attempt: Attempt, longer: int) -> tuple[Attempt, int, int]:
