@@ -112,9 +112,10 @@ def session(path: Path) -> Any:
 
 def predict(image: torch.Tensor, model: OnnxModel, path: Path) -> torch.Tensor:
     """Run the network on one (H, W, 3) image in [0, 1]; return (H, W) float32 depth in the
-    larger = farther sense, resized (bicubic) back to the image size."""
+    larger = farther sense, resized (bicubic) back to the image size, on the image's device
+    (the network itself runs on the CPU: a GPU render goes there and its depth comes back)."""
     h, w = image.shape[:2]
-    x = image.permute(2, 0, 1)[None].float()
+    x = image.detach().cpu().permute(2, 0, 1)[None].float()
     x = F.interpolate(x, size=(model.height, model.width), mode="bilinear", align_corners=False)
     x = x.clamp(0, 1)
     mean = torch.tensor(model.mean).view(1, 3, 1, 1)
@@ -134,7 +135,7 @@ def predict(image: torch.Tensor, model: OnnxModel, path: Path) -> torch.Tensor:
         raise PriorError(f"{path}: expected a single-channel depth output, got {tuple(out.shape)}")
     out = F.interpolate(out[None, None], size=(h, w), mode="bicubic", align_corners=False)[0, 0]
     # Inverse-depth networks: negate the disparity, like the reference (M = 255 - disparity).
-    return -out if model.output == "inverse_depth" else out
+    return (-out if model.output == "inverse_depth" else out).to(image.device)
 
 
 def onnx_priors(

@@ -130,7 +130,8 @@ def test_neural_color_on_cuda(seed: int) -> None:
 
 def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
     """A smoke-scale DNGaussian run on the GPU: densification sees screen gradients, the model
-    stays on the GPU, the held-out PSNR is finite, and export (SH baking) works."""
+    stays on the GPU, the held-out PSNR is finite, and export (SH baking) works. The
+    pseudo-view pass runs too (its depth network runs on the CPU, its render on the GPU)."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
 
@@ -140,8 +141,10 @@ def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
         hash_log2_size=14, lr_means_start=0, lr_means_steps=40, soft_depth_start=15,
         densify_from=10, densify_until=38, densify_interval=10, depth_smooth_start=20,
         checkpoint_interval_s=0,
+        **{"pseudo.weight": 1.0, "pseudo.start": 20, "pseudo.every": 5},
     )  # fmt: skip
     trainer = Trainer(scene, cfg, priors, tmp_path, device="cuda")
+    assert trainer.pseudo is not None
     result = trainer.run()
     g = trainer.gaussians
     assert result.iteration == 40 and g.means.is_cuda
@@ -149,3 +152,18 @@ def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
     psnr = result.metrics["psnr"]
     assert psnr is not None and math.isfinite(psnr)
     assert (tmp_path / "model.ply").is_file()
+
+
+def test_depth_network_on_a_cuda_image(seed: int) -> None:
+    """The monocular network (an ONNX CPU session) takes a GPU image, as the pseudo-view pass
+    gives it, and returns its depth on the GPU, equal to the CPU image's depth."""
+    from sparsesplat.engine.priors.onnx_depth import describe, predict
+    from sparsesplat.engine.weights import resolve_weight
+
+    network = describe("pydnet", {})
+    path = resolve_weight(network.filename, None)
+    image = torch.rand(60, 80, 3, generator=torch.Generator().manual_seed(seed))
+    on_cpu = predict(image, network, path)
+    on_gpu = predict(image.cuda(), network, path)
+    assert on_gpu.is_cuda and on_gpu.shape == (60, 80)
+    assert torch.equal(on_gpu.cpu(), on_cpu)
