@@ -47,7 +47,11 @@ class ScheduleClock:
     is further along. On a machine fast enough for the limit never to bind, that is the
     iteration itself (the run is the same as without a limit, bit for bit); on a slower one
     the schedule runs ahead of the iteration count from the moment time would run out first,
-    and still completes by the limit. Parts compare schedule fields (those
+    and still completes by the limit. Seconds spent before the first iteration that count as
+    training (:attr:`setup_s`: the learned matches) count towards the budget or limit but not
+    towards its pace: the schedule spreads over the seconds left after them, so a run fast
+    enough for its limit keeps the plain schedule from its first iteration. Parts compare
+    schedule fields (those
     ``TrainConfig.with_iterations`` scales) against :meth:`position` and keep raw iteration
     counts for cadences (``densify.interval``, ``depth.every``)."""
 
@@ -64,6 +68,9 @@ class ScheduleClock:
         self._previous: float = 0
         self.limited = False
         """Whether the time limit has bound: the schedule ran ahead of the iteration count."""
+        self.setup_s = 0.0
+        """Training seconds spent before the first iteration (the trainer sets it; a checkpoint
+        keeps it): counted by :meth:`finished`, left out of the schedule's pace."""
 
     def _seconds(self) -> float | None:
         return self.budget_s if self.budget_s is not None else self.limit_s
@@ -72,7 +79,10 @@ class ScheduleClock:
         """The position of ``iteration`` begun after ``elapsed_s`` under a budget or limit."""
         seconds = self._seconds()
         assert seconds is not None
-        timed = min(float(self.total), self.total * elapsed_s / seconds)
+        setup = min(self.setup_s, seconds)
+        span = seconds - setup
+        done = max(elapsed_s - setup, 0.0)
+        timed = float(self.total) if span <= 0 else min(float(self.total), self.total * done / span)
         if self.budget_s is not None:
             return timed
         if iteration >= timed:  # the iteration count is ahead: the plain schedule, exactly

@@ -29,6 +29,7 @@ def trainer_state(t: Trainer) -> dict[str, Any]:
         "scene_name": t.scene.name,
         "iteration": t.iteration,
         "elapsed_s": t.elapsed_s,
+        "setup_s": t.clock.setup_s,
         "extent": t.extent,
         "raster_near": t.raster_near,
         "background": t.background.cpu(),
@@ -81,4 +82,6 @@ def restore_trainer(t: Trainer, state: dict[str, Any]) -> None:
     if t.poses is not None:
         t.poses.load_state_dict(state)
     t.recorder.records = list(state["records"])
+    # Checkpoints from before the setup seconds were kept: their run's clock had none.
+    t.clock.setup_s = float(state.get("setup_s", 0.0))
     t.clock.start(t.elapsed_s, t.iteration)

@@ -231,6 +231,9 @@ class Trainer:
         # Matching is part of training: the run's clock (its time limit, the error-against-time
         # record) starts with the seconds it took.
         self.elapsed_s = self.matches.seconds if self.matches is not None else 0.0
+        # ... but not to the pace the schedule keeps under a time limit: a run fast enough
+        # for its limit trains the plain schedule from its first iteration.
+        self.clock.setup_s = self.elapsed_s
         self.view_stack: list[int] = []
         self.stop_requested = False
         """Set from another thread (a job's cancel or a time budget): the run stops after the

@@ -49,6 +49,24 @@ def test_one_training_photo_trains_without_matches_and_says_why() -> None:
     assert any("not used: 1 training photo" in w for w in warnings), warnings
 
 
+def test_matching_seconds_count_as_training_but_not_towards_a_limits_pace(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The run's clock starts with its matching seconds (the error-against-time record and the
+    time limit count them), and the time limit's schedule spreads over the seconds left."""
+    from sparsesplat.engine.train.init import matched_points
+    from sparsesplat.engine.train.loop import trainer as trainer_module
+
+    def three_seconds(*_args: object, **_kwargs: object) -> matched_points.RunMatches:
+        return matched_points._none(3.0, "xfeat-lighterglue", "stub")
+
+    monkeypatch.setattr(trainer_module, "run_matches", three_seconds)
+    scene, priors = make_scene(seed=0)
+    t = Trainer(scene, small(**MATCHED), priors)
+    assert t.matches is not None and t.matches.seconds == 3.0
+    assert t.elapsed_s == 3.0 and t.clock.setup_s == 3.0
+
+
 def test_without_the_extra_a_run_says_what_to_install_and_trains_on() -> None:
     out = run_without_extra(
         """

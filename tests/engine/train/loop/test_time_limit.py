@@ -21,16 +21,18 @@ NOMINAL = 40
 
 
 def _run(
-    limit_s: float | None, step_s: dict[int, float] | None = None
+    limit_s: float | None, step_s: dict[int, float] | None = None, setup_s: float = 0.0
 ) -> tuple[Trainer, TrainResult, dict[int, dict[str, float]]]:
     """Train the smoke config for NOMINAL iterations under ``limit_s``, each iteration taking
-    STEP_S fake seconds (or ``step_s[k]`` for iteration k); returns the trainer and its result
-    after the run and, per iteration, its schedule position, centre LR and the Gaussian count
-    densification left."""
+    STEP_S fake seconds (or ``step_s[k]`` for iteration k), after ``setup_s`` seconds counted
+    as training before the first (as the trainer counts its matching); returns the trainer and
+    its result after the run and, per iteration, its schedule position, centre LR and the
+    Gaussian count densification left."""
     scene, priors = make_scene(seed=0)
     config = clocked_config(NOMINAL, time_limit_s=limit_s)
     fake = FakeTime()
     t = Trainer(scene, config, priors, time_source=fake)
+    t.elapsed_s = t.clock.setup_s = setup_s  # what the trainer does with its matches' seconds
     seen: dict[int, dict[str, float]] = {}
     step = t._step
 
@@ -61,6 +63,53 @@ def test_a_limit_that_does_not_bind_leaves_the_run_bit_for_bit() -> None:
     assert metrics["time_limit_s"] == 21.0 and metrics["time_limited"] is False
     assert not metrics.get("warnings")
     assert "time_limit_s" not in plain_result.metrics
+
+
+def test_seconds_before_the_first_iteration_count_towards_the_limit_not_its_pace() -> None:
+    """5 s of matching, then 40 iterations of 0.5 s under a 26 s limit: the limit's pace over
+    the 21 s left (40 in 21 s) never binds, so the run is the plain one bit for bit and says
+    nothing. Counted from zero, 5 s would have put the schedule 7.7 positions ahead at the first
+    iteration and reported a slow stretch."""
+    timed, result, seen = _run(26.0, setup_s=5.0)
+    plain, _, plain_seen = _run(None)
+    assert seen == plain_seen
+    for name, value in plain.gaussians.params.items():
+        assert torch.equal(timed.gaussians.params[name], value), name
+    assert result.metrics["seconds"] == pytest.approx(25.0)
+    assert result.metrics["time_limited"] is False and not result.metrics.get("warnings")
+    # A limit the run cannot make after its setup still ends it on time.
+    short, short_result, _ = _run(15.0, setup_s=5.0)
+    assert short.iteration == 20 and short_result.metrics["time_limited"] is True
+
+
+def test_a_clock_spreads_its_schedule_over_the_seconds_left_after_setup() -> None:
+    clock = ScheduleClock(40, limit_s=10.0)
+    clock.setup_s = 2.0
+    clock.advance(2.0, 1)  # nothing of the 8 s left is spent yet
+    assert clock.position(1) == 1 and not clock.limited
+    clock.advance(6.0, 14)  # half of the 8 s: 20 of 40, ahead of 14
+    assert clock.position(14) == 20.0 and clock.limited
+    assert not clock.finished(14, 9.9) and clock.finished(14, 10.0)
+    over = ScheduleClock(40, limit_s=10.0)
+    over.setup_s = 12.0  # setup longer than the limit: the schedule's end, and the run is over
+    over.advance(12.0, 1)
+    assert over.position(1) == 40.0 and over.finished(1, 12.0)
+
+
+def test_a_checkpoint_keeps_the_setup_seconds() -> None:
+    from sparsesplat.engine.train.loop.state import restore_trainer, trainer_state
+
+    scene, priors = make_scene(seed=0)
+    config = clocked_config(NOMINAL, time_limit_s=30.0)
+    t = Trainer(scene, config, priors)
+    t.clock.setup_s = 2.5
+    state = trainer_state(t)
+    again = Trainer(scene, config, priors)
+    restore_trainer(again, state)
+    assert again.clock.setup_s == 2.5
+    del state["setup_s"]  # a checkpoint written before the setup seconds were kept
+    restore_trainer(again, state)
+    assert again.clock.setup_s == 0.0
 
 
 def test_a_slow_stretch_that_the_run_makes_up_is_reported_as_such() -> None:
