@@ -17,6 +17,11 @@ A second table times the neural colour field alone (forward, and backward to the
 field parameters) with the native kernels and with the torch reference hash grid + SH
 (``--field-backends``), at the same sizes.
 
+``--device cuda`` times the iteration tables on the GPU (gsplat's rasterizer, the torch hash
+grid): the totals are synchronized, wall seconds of whole iterations; the stage columns are
+the host's seconds per stage, which on a GPU measure launches rather than the kernels' work
+(the field and loss tables time the CPU kernels whatever the device).
+
 A third table times the photometric loss L1 + 0.2 * D-SSIM alone (forward and backward to the
 rendered image, target statistics precomputed as in training) with the native fused kernel and
 with the torch reference (``--loss-backends``), at the iteration's image size.
@@ -36,19 +41,31 @@ if TYPE_CHECKING:
     from sparsesplat.engine.train import Trainer
 
 
-def _time_steps(t: Trainer, iterations: int) -> dict[str, float]:
+def _synchronize(device: str) -> None:
+    """Wait for the GPU's queued work when ``device`` is one (a CPU step is done on return)."""
+    if device.startswith("cuda"):
+        import torch
+
+        torch.cuda.synchronize()
+
+
+def _time_steps(t: Trainer, iterations: int, device: str = "cpu") -> dict[str, float]:
     """Mean seconds per stage (``t``'s profile timings) and in total over ``iterations`` steps
-    of ``t`` after one warm-up step, with denormals flushed as ``Trainer.run`` does."""
+    of ``t`` after warm-up steps (one on the CPU; three on a GPU, whose first steps also pick
+    kernels and grow its memory pool), with denormals flushed as ``Trainer.run`` does."""
     from sparsesplat.engine.denormals import flush_denormals
 
     with flush_denormals():
-        t.iteration += 1
-        t._step()
+        for _ in range(3 if device.startswith("cuda") else 1):
+            t.iteration += 1
+            t._step()
+        _synchronize(device)
         t.timings.clear()
         t0 = time.perf_counter()
         for _ in range(iterations):
             t.iteration += 1
             t._step()
+        _synchronize(device)
         total = (time.perf_counter() - t0) / iterations
     row = {k: v / iterations for k, v in t.timings.items()}
     row.update(gaussians=len(t.gaussians), total_s=total)
@@ -61,9 +78,10 @@ def measure(
     width: int = 504,
     height: int = 378,
     overrides: dict[str, Any] | None = None,
+    device: str = "cpu",
 ) -> dict[str, float]:
-    """Mean seconds per stage over ``iterations`` timed iterations (after one warm-up) of the
-    ``llff`` preset, with dotted-field ``overrides`` (``--set``) on top."""
+    """Mean seconds per stage over ``iterations`` timed iterations (after the warm-up) of the
+    ``llff`` preset on ``device``, with dotted-field ``overrides`` (``--set``) on top."""
     from sparsesplat.engine.malloc import keep_freed_memory
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train.run import RunSpec, build_run
@@ -80,13 +98,18 @@ def measure(
         iterations=10_000,
     )  # fmt: skip
     # The synthetic scene's exact depths are the priors, whatever the config's prior kind.
-    t = build_run(spec, scene, prior_source=lambda _scene, _kind: priors).trainer
+    run = build_run(spec, scene, prior_source=lambda _scene, _kind: priors, device=device)
+    t = run.trainer
     t.iteration = 3500  # past soft_depth_start and depth_smooth_start: every pass runs
-    return _time_steps(t, iterations)
+    return _time_steps(t, iterations, device)
 
 
 def measure_trained(
-    scene_dir: str, checkpoint: str, iterations: int, overrides: dict[str, Any] | None = None
+    scene_dir: str,
+    checkpoint: str,
+    iterations: int,
+    overrides: dict[str, Any] | None = None,
+    device: str = "cpu",
 ) -> dict[str, float]:
     """Mean seconds per stage of ``iterations`` iterations (after one warm-up) continuing a real
     run: the scene at ``scene_dir`` and the model, field and optimizer state of ``checkpoint``
@@ -106,7 +129,8 @@ def measure_trained(
             "densify.until": 0, "densify.clean_iterations": (), **(overrides or {}),
         }
     )  # fmt: skip
-    return _time_steps(build_run(spec, scene, resume_from=checkpoint).trainer, iterations)
+    run = build_run(spec, scene, resume_from=checkpoint, device=device)
+    return _time_steps(run.trainer, iterations, device)
 
 
 def measure_field(n: int, backend: str, iterations: int) -> dict[str, float | int | str]:
@@ -207,6 +231,10 @@ def main() -> None:
         "checkpoint.pt of a `sparsesplat train SCENE --out RUN` run on it (a trained model's "
         "footprints and depth complexity, in place of the random box's)",
     )  # fmt: skip
+    parser.add_argument(
+        "--device", default="cpu",
+        help="torch device of the iteration tables (cpu, cuda); synchronized totals on a GPU",
+    )  # fmt: skip
     args = parser.parse_args()
     from sparsesplat.engine.train.config.overrides import parse_override
 
@@ -231,11 +259,11 @@ def main() -> None:
         return
     rows = []
     for n in args.sizes:
-        r = measure(n, args.iterations, overrides=overrides)
+        r = measure(n, args.iterations, overrides=overrides, device=args.device)
         rows.append({"model": "random box"} | _rounded(r))
     if args.trained:
         scene_dir, checkpoint = args.trained
-        r = measure_trained(scene_dir, checkpoint, args.iterations, overrides)
+        r = measure_trained(scene_dir, checkpoint, args.iterations, overrides, args.device)
         rows.append({"model": f"trained {Path(scene_dir).name}"} | _rounded(r))
     cols = ["model", "gaussians", "total_s", "hard_depth", "soft_depth", "neural_fwd",
             "photo_render", "losses", "consistency", "photo_backward", "neural_bwd",

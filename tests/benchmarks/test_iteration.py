@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
+import pytest
 import torch
 
-from benchmarks.iteration import measure_trained
+from benchmarks.iteration import measure, measure_trained
 from sparsesplat.engine.datasets import load_scene
 from sparsesplat.engine.model.checkpoint import load_checkpoint
 from sparsesplat.engine.train import Trainer, preset
@@ -41,3 +43,20 @@ def test_trained_row_continues_the_checkpoint_at_its_gaussian_count(tmp_path: Pa
     # The stages are consecutive slices of each timed iteration.
     assert sum(stages.values()) <= row["total_s"] * 1.05
     assert torch.isfinite(torch.tensor(row["total_s"]))
+
+
+def _check_box_row(row: dict[str, float], n: int) -> None:
+    assert row["gaussians"] == n  # densification is off: the count stays the box's
+    assert math.isfinite(row["total_s"]) and row["total_s"] > 0
+    assert {"hard_depth", "soft_depth", "photo_render", "optimizer"} <= set(row)
+
+
+def test_the_random_box_row_times_every_pass() -> None:
+    _check_box_row(measure(1500, 1, width=96, height=72), 1500)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA GPU available")
+def test_the_random_box_row_on_a_gpu() -> None:
+    pytest.importorskip("gsplat")
+    _check_box_row(measure(1500, 2, device="cuda"), 1500)
