@@ -131,7 +131,8 @@ def test_neural_color_on_cuda(seed: int) -> None:
 def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
     """A smoke-scale DNGaussian run on the GPU: densification sees screen gradients, the model
     stays on the GPU, the held-out PSNR is finite, and export (SH baking) works. The
-    pseudo-view pass runs too (its depth network runs on the CPU, its render on the GPU)."""
+    pseudo-view pass runs too (its depth network runs on the CPU, its render on the GPU), and
+    so does the training cameras' refinement (for cameras estimated from the photos)."""
     from sparsesplat.engine.synthetic import make_scene
     from sparsesplat.engine.train import Trainer, preset
 
@@ -141,13 +142,17 @@ def test_trainer_on_cuda(gsplat: Any, tmp_path: Path, seed: int) -> None:
         hash_log2_size=14, lr_means_start=0, lr_means_steps=40, soft_depth_start=15,
         densify_from=10, densify_until=38, densify_interval=10, depth_smooth_start=20,
         checkpoint_interval_s=0,
-        **{"pseudo.weight": 1.0, "pseudo.start": 20, "pseudo.every": 5},
+        **{"pseudo.weight": 1.0, "pseudo.start": 20, "pseudo.every": 5, "poses.enabled": True},
     )  # fmt: skip
     trainer = Trainer(scene, cfg, priors, tmp_path, device="cuda")
-    assert trainer.pseudo is not None
+    assert trainer.pseudo is not None and trainer.poses is not None
     result = trainer.run()
     g = trainer.gaussians
     assert result.iteration == 40 and g.means.is_cuda
+    refined = [c.world_to_camera for c in trainer.poses.refined()]
+    given = [c.world_to_camera for c in trainer.cameras]
+    assert all(bool(torch.isfinite(m).all()) for m in refined)
+    assert any(not torch.equal(a, b) for a, b in zip(refined, given, strict=True))
     assert float(g.grad_count.sum()) > 0 and float(g.grad_accum.sum()) > 0, "no screen gradient"
     psnr = result.metrics["psnr"]
     assert psnr is not None and math.isfinite(psnr)
