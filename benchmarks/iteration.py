@@ -111,7 +111,7 @@ def measure_trained(
     overrides: dict[str, Any] | None = None,
     device: str = "cpu",
 ) -> dict[str, float]:
-    """Mean seconds per stage of ``iterations`` iterations (after one warm-up) continuing a real
+    """Mean seconds per stage of ``iterations`` iterations (after the warm-up) continuing a real
     run: the scene at ``scene_dir`` and the model, field and optimizer state of ``checkpoint``
     (a ``sparsesplat train --out RUN`` run's ``RUN/checkpoint.pt``), with the plain ``train``
     config for that scene (its preset and layout recipe) plus ``overrides``. Densification and

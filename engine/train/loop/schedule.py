@@ -51,9 +51,8 @@ class ScheduleClock:
     training (:attr:`setup_s`: the learned matches) count towards the budget or limit but not
     towards its pace: the schedule spreads over the seconds left after them, so a run fast
     enough for its limit keeps the plain schedule from its first iteration. Parts compare
-    schedule fields (those
-    ``TrainConfig.with_iterations`` scales) against :meth:`position` and keep raw iteration
-    counts for cadences (``densify.interval``, ``depth.every``)."""
+    schedule fields (those ``TrainConfig.with_iterations`` scales) against :meth:`position`
+    and keep raw iteration counts for cadences (``densify.interval``, ``depth.every``)."""
 
     def __init__(
         self, total: int, budget_s: float | None = None, limit_s: float | None = None
