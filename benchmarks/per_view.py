@@ -23,6 +23,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from benchmarks.common import write_results
 from sparsesplat.api.names import ARTIFACT_FILES
 
@@ -45,11 +47,30 @@ def nearest_training_angles(scene: Any) -> dict[str, float]:
     }
 
 
-def view_psnr_of_run(out_dir: Path, scene: Any) -> dict[str, float]:
+def best_gain(render: Any, truth: Any, mask: Any | None) -> np.ndarray:
+    """The per-channel gain g minimising the squared error of ``render * g`` against ``truth``
+    (float64 least squares, over the pixels where ``mask`` is 1 when given, else all): the
+    most a brightness model of the held-out view could correct. It reads the held-out photo,
+    so it is a diagnostic of how much of a view's error is brightness, never a score."""
+    a = np.asarray(render, dtype=np.float64)[..., :3]
+    b = np.asarray(truth, dtype=np.float64)[..., :3]
+    if mask is not None:
+        m = np.asarray(mask, dtype=np.float64)
+        keep = (m[..., 0] if m.ndim == 3 else m) == 1.0
+        a, b = a[keep], b[keep]
+    a, b = a.reshape(-1, 3), b.reshape(-1, 3)
+    energy = (a * a).sum(axis=0)
+    # A channel the render leaves black has no gain to fit: keep it as it is.
+    return np.where(energy > 0, (a * b).sum(axis=0) / np.maximum(energy, 1e-300), 1.0)
+
+
+def view_psnr_of_run(out_dir: Path, scene: Any, gain: bool = False) -> dict[str, float]:
     """Per held-out view PSNR of one bench-quality run: from its ``metrics.json`` when the
-    trainer wrote ``views`` there, else by rendering its checkpoint (same evaluator)."""
+    trainer wrote ``views`` there, else by rendering its checkpoint (same evaluator). With
+    ``gain`` the checkpoint is always rendered and each render is first multiplied by its
+    view's :func:`best_gain` (clipped to [0, 1])."""
     metrics_path = out_dir / ARTIFACT_FILES["metrics"]
-    if metrics_path.is_file():
+    if metrics_path.is_file() and not gain:
         views = json.loads(metrics_path.read_text()).get("views")
         if views:
             return {name: float(scores[PSNR_KEY]) for name, scores in views.items()}
@@ -67,6 +88,10 @@ def view_psnr_of_run(out_dir: Path, scene: Any) -> dict[str, float]:
     with torch.no_grad():
         for view in scene.test:
             image = model.render(view.camera).image.permute(1, 2, 0)
+            if gain:
+                rgb = image.clamp(0, 1).double().numpy()
+                mask = None if view.mask is None else view.mask.numpy()
+                image = np.clip(rgb * best_gain(rgb, view.image.numpy(), mask), 0.0, 1.0)
             value = evaluator.score_view(image, view.image, view.mask)[PSNR_KEY]
             assert value is not None  # PSNR is computed for every view
             out[view.name] = value
@@ -74,10 +99,11 @@ def view_psnr_of_run(out_dir: Path, scene: Any) -> dict[str, float]:
 
 
 def per_view_rows(
-    results: list[dict[str, Any]], scene: Any, variants: Sequence[str]
+    results: list[dict[str, Any]], scene: Any, variants: Sequence[str], gain: bool = False
 ) -> list[dict[str, Any]]:
     """One row per held-out view of ``scene``: its angle to the nearest training camera and,
-    per variant, the mean PSNR over that variant's seeds (plus ``<variant>_seeds``)."""
+    per variant, the mean PSNR over that variant's seeds (plus ``<variant>_seeds``); with
+    ``gain`` also ``<variant>_gain``, the mean PSNR after each render's :func:`best_gain`."""
     angles = nearest_training_angles(scene)
     rows: list[dict[str, Any]] = [{"view": name, "angle_deg": a} for name, a in angles.items()]
     for variant in variants:
@@ -88,10 +114,12 @@ def per_view_rows(
         ]
         if not runs:
             raise SystemExit(f"bench-per-view: no {variant!r} run of {scene.name} in the results")
-        per_run = [view_psnr_of_run(Path(r["out_dir"]), scene) for r in runs]
-        for row in rows:
-            values = [p[row["view"]] for p in per_run]
-            row[variant] = sum(values) / len(values)
+        columns = {variant: False, f"{variant}_gain": True} if gain else {variant: False}
+        for column, gained in columns.items():
+            per_run = [view_psnr_of_run(Path(r["out_dir"]), scene, gained) for r in runs]
+            for row in rows:
+                values = [p[row["view"]] for p in per_run]
+                row[column] = sum(values) / len(values)
         rows[0][f"{variant}_seeds"] = ",".join(str(r.get("seed", 0)) for r in runs)
     return rows
 
@@ -103,6 +131,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--scenes", required=True, help="comma list of scene names")
     parser.add_argument("--variants", required=True, help="comma list of variants to compare")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument(
+        "--gain",
+        action="store_true",
+        help="also the PSNR after each held-out render's best per-channel gain against its "
+        "photo (renders the checkpoints; a diagnostic of how much error is brightness)",
+    )
     args = parser.parse_args(argv)
 
     import torch
@@ -121,9 +155,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise SystemExit(f"bench-per-view: no run of scene {name!r} in the results")
         # The paper split, as bench-quality trains it (its default --views).
         scene = load_scene(sorted(paths)[0])
-        for row in per_view_rows(results, scene, variants):
+        for row in per_view_rows(results, scene, variants, args.gain):
             table.append({"scene": scene.name, **row})
-    write_results("per_view", table, ["scene", "view", "angle_deg", *variants])
+    columns = [c for v in variants for c in ((v, f"{v}_gain") if args.gain else (v,))]
+    write_results("per_view", table, ["scene", "view", "angle_deg", *columns])
     return 0
 
 

@@ -194,3 +194,59 @@ def test_per_view_rows_average_each_view_over_seeds(
     assert rows[0]["full_seeds"] == "0,1"
     with pytest.raises(SystemExit, match="no 'no_depth' run of s"):
         per_view.per_view_rows(results, scene, ["no_depth"])
+
+
+def test_best_gain_finds_a_planted_per_channel_brightness_inside_the_mask() -> None:
+    """The gain is the float64 least-squares fit over the mask's full pixels only: a photo that
+    is the render dimmed by (0.7, 0.8, 0.9) inside the mask (anything outside) gives exactly
+    that gain; with noise added the gained error is never above the error as rendered (the
+    fit's optimum, and clipping to [0, 1] only moves values toward a photo in [0, 1]); a
+    channel the render leaves black keeps a gain of 1."""
+    import numpy as np
+
+    from benchmarks.per_view import best_gain
+
+    rng = np.random.default_rng(7)
+    render = rng.uniform(0.0, 1.0, (12, 16, 3))
+    mask = np.zeros((12, 16))
+    mask[3:9, 4:12] = 1.0
+    mask[0, 0] = 0.5  # partial: outside DTU's "exactly 1" mask
+    planted = np.array([0.7, 0.8, 0.9])
+    truth = rng.uniform(0.0, 1.0, (12, 16, 3))
+    inside = mask == 1.0
+    truth[inside] = render[inside] * planted
+    assert best_gain(render, truth, mask) == pytest.approx(planted, abs=1e-12)
+    assert not np.allclose(best_gain(render, truth, None), planted, atol=1e-3)
+
+    noisy = np.clip(truth + rng.normal(0.0, 0.05, truth.shape), 0.0, 1.0)
+    gain = best_gain(render, noisy, mask)
+    gained = np.clip(render * gain, 0.0, 1.0)
+    assert ((gained - noisy)[inside] ** 2).mean() <= ((render - noisy)[inside] ** 2).mean()
+
+    dark = render.copy()
+    dark[..., 2] = 0.0
+    assert best_gain(dark, truth, mask)[2] == 1.0
+
+
+def test_per_view_rows_add_a_gain_column_per_variant_when_asked(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With ``gain`` each variant gets ``<variant>_gain``, scored with the gain applied (the
+    flag reaches the scoring) and averaged over the seeds like the plain column."""
+    from benchmarks import per_view
+
+    scene = SimpleNamespace(name="s", train=[], test=[])
+    monkeypatch.setattr(per_view, "nearest_training_angles", lambda s: {"v1": 10.0})
+    table = {("a", False): 10.0, ("b", False): 12.0, ("a", True): 11.0, ("b", True): 14.0}
+
+    def scored(out_dir: Path, _scene: object, gain: bool = False) -> dict[str, float]:
+        return {"v1": table[(out_dir.name, gain)]}
+
+    monkeypatch.setattr(per_view, "view_psnr_of_run", scored)
+    results = [
+        {"scene": "s", "variant": "full", "seed": i, "out_dir": f"runs/{name}"}
+        for i, name in enumerate("ab")
+    ]
+    rows = per_view.per_view_rows(results, scene, ["full"], gain=True)
+    assert (rows[0]["full"], rows[0]["full_gain"]) == (11.0, 12.5)
+    assert "full_gain" not in per_view.per_view_rows(results, scene, ["full"])[0]
