@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from sparsesplat.api.camera_estimation import CameraEstimation
 from sparsesplat.api.jobs import Job
 from sparsesplat.client.commands.common import add_job_arguments, client, dump, fmt_seconds, guarded
 
@@ -40,6 +41,8 @@ def describe(job: Job) -> str:
         )
     else:
         lines.append(f"  views           {job.n_train_views} train + {job.n_test_views} held out")
+    if p is not None and p.cameras is not None:
+        lines += camera_lines(p.cameras)
     if job.error:
         lines.append(f"  error           {job.error}")
     lines += [f"  warning         {message}" for message in job.warnings]
@@ -52,6 +55,33 @@ def describe(job: Job) -> str:
     if job.has_model:
         lines.append(f"  model           sparsesplat render {job.id} ... / export {job.id}")
     return "\n".join(lines)
+
+
+FOCAL = {"given": "focal given", "exif": "focal from EXIF", "guess": "focal guessed"}
+"""How each ``CameraEstimation.focal`` reads in the summary line."""
+
+
+def camera_lines(estimation: CameraEstimation) -> list[str]:
+    """The camera estimation of a photos-only job: a summary line, then one line per photo
+    (its verified matches, reprojection error and orientation spread, or that it was left out),
+    so that a user sees from the terminal why a photo was not trained on."""
+    lines = [
+        f"  cameras         estimated from the photos: {estimation.views} of "
+        f"{len(estimation.photos) or estimation.views} placed, {estimation.points} points, "
+        f"{estimation.reprojection_error_px:.2f} px, {estimation.attempt} attempt, "
+        f"{FOCAL.get(estimation.focal, estimation.focal)} ({fmt_seconds(estimation.seconds)})"
+    ]
+    width = max((len(photo.name) for photo in estimation.photos), default=0)
+    for photo in estimation.photos:
+        head = f"    {photo.name:<{width}}  {photo.matches:>5} matches"
+        if not photo.placed:
+            # Its reason is the job's warning line (the worker warns for each photo left out).
+            lines.append(f"{head}  left out")
+            continue
+        error = f"{photo.error_px:.2f} px" if photo.error_px is not None else "-"
+        spread = f"  ±{photo.rotation_std_deg:.2f}°" if photo.rotation_std_deg is not None else ""
+        lines.append(f"{head}  {error}{spread}")
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:

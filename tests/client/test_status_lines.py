@@ -43,3 +43,27 @@ def test_views_line_counts_the_photos_trained_on_and_names_those_left_out() -> N
 def test_views_line_unchanged_when_every_photo_is_placed() -> None:
     job = _job([_photo(f"{i}.png", True) for i in range(3)])
     assert "  views           3 train + 0 held out" in describe(job).splitlines()
+
+
+def test_camera_lines_show_each_photos_matches_and_error_and_which_were_left_out() -> None:
+    placed = {"name": "a.png", "placed": True, "matches": 812, "points": 760, "error_px": 0.557,
+              "rotation_std_deg": 0.22}  # fmt: skip
+    left = {"name": "stray.png", "placed": False, "matches": 3,
+            "reason": "shares no verified match with the placed photos"}  # fmt: skip
+    lines = describe(_job([placed, _photo("b.png", True), _photo("c.png", True), left]))
+    rows = lines.splitlines()
+    summary = [row for row in rows if row.strip().startswith("cameras")]
+    assert summary == [
+        "  cameras         estimated from the photos: 3 of 4 placed, 900 points, 0.80 px, "
+        "learned attempt, focal guessed (3s)"
+    ]
+    assert "    a.png        812 matches  0.56 px  ±0.22°" in rows
+    assert "    b.png        500 matches  -" in rows  # placed, with no error reported
+    assert "    stray.png      3 matches  left out" in rows
+
+
+def test_no_camera_lines_for_a_job_with_uploaded_cameras() -> None:
+    job = _job([_photo("a.png", True)])
+    assert job.progress is not None
+    job.progress.cameras = None
+    assert not any(row.strip().startswith("cameras") for row in describe(job).splitlines())
