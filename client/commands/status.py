@@ -64,7 +64,8 @@ FOCAL = {"given": "focal given", "exif": "focal from EXIF", "guess": "focal gues
 def camera_lines(estimation: CameraEstimation) -> list[str]:
     """The camera estimation of a photos-only job: a summary line, then one line per photo
     (its verified matches, reprojection error and orientation spread, or that it was left out),
-    so that a user sees from the terminal why a photo was not trained on."""
+    so that a user sees from the terminal which photos were trained on and how firmly each was
+    placed (the warning lines say why a photo was left out)."""
     lines = [
         f"  cameras         estimated from the photos: {estimation.views} of "
         f"{len(estimation.photos) or estimation.views} placed, {estimation.points} points, "
